@@ -1,0 +1,132 @@
+"""`Avatar`: canonical cloud + dynamics + optional CNN + expression space, and `load_avatar` for any source."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+from pathlib import Path
+
+import numpy as np
+import torch
+
+from .dynamics import Dynamics, Offsets, apply_offsets, cloud_tensors, to_posed_gaussians
+from .errors import AvatarFileError
+from .expression import ExpressionSpace
+from .gaussians import GaussianCloud, PosedGaussians
+from .refine import ScreenCNN
+
+#: Where the bundled demo avatar lives (repository checkout or editable install).
+DEMO_DIR = Path(__file__).resolve().parents[1] / "assets" / "demo"
+DEMO_AVATAR = DEMO_DIR / "avatar.npga"
+
+
+@dataclass
+class Avatar:
+    """An NPGA avatar. A static scene (e.g. from a PLY) has no dynamics and code_dim 0."""
+
+    cloud: GaussianCloud
+    dynamics: Dynamics | None = None
+    cnn: ScreenCNN | None = None
+    expression: ExpressionSpace | None = None
+    provenance: dict = field(default_factory=dict)
+    units: str = "m"
+    source: str | None = None  # path it was loaded from, if any
+    _first_layer: dict[str, torch.Tensor] = field(default_factory=dict, init=False, repr=False)
+    _canonical: dict | None = field(default=None, init=False, repr=False)
+
+    @property
+    def code_dim(self) -> int:
+        return 0 if self.dynamics is None else self.dynamics.code_dim
+
+    def __len__(self) -> int:
+        return len(self.cloud)
+
+    def neutral_code(self) -> np.ndarray:
+        """The mean code of the expression space (zeros without one)."""
+        if self.expression is not None:
+            return self.expression.mean.copy()
+        return np.zeros(self.code_dim, np.float32)
+
+    def check_code(self, z: np.ndarray) -> np.ndarray:
+        """A float32 (D,) code, or ValueError naming both dimensions."""
+        z = np.asarray(z, dtype=np.float32).reshape(-1)
+        if z.shape[0] != self.code_dim:
+            raise ValueError(f"expression code has {z.shape[0]} dims, the avatar expects {self.code_dim}")
+        if not np.all(np.isfinite(z)):
+            raise ValueError("expression code has NaN or Inf values")
+        return z
+
+    def invalidate_caches(self) -> None:
+        """Drop cached per-Gaussian terms (call after editing the cloud or the networks)."""
+        self._first_layer.clear()
+        self._canonical = None
+
+    def _tensors(self) -> dict:
+        if self._canonical is None:
+            self._canonical = cloud_tensors(self.cloud)
+        return self._canonical
+
+    @torch.no_grad()
+    def offsets(self, z: np.ndarray, chunk: int = 2048) -> Offsets:
+        """Offsets at code z by the fast path (first layer's per-Gaussian part cached)."""
+        if self.dynamics is None:
+            raise ValueError("this avatar has no dynamics")
+        zt = torch.from_numpy(self.check_code(z))
+        t = self._tensors()
+        outs = {}
+        for key, net in self.dynamics.networks().items():
+            if key not in self._first_layer:
+                self._first_layer[key] = net.precompute(t["means"], t["features"])
+            gi = (t["means"], t["features"]) if net.config.skips else None
+            outs[key] = net.evaluate(self._first_layer[key], zt, chunk=chunk, gaussian_inputs=gi)
+        g = self.dynamics.G.split(outs["G"]) if "G" in outs else {}
+        return Offsets(outs.get("F"), g)
+
+    @torch.no_grad()
+    def offsets_reference(self, z: np.ndarray) -> Offsets:
+        """Offsets by the plain forward passes (slow; the definition the fast path is tested against)."""
+        if self.dynamics is None:
+            raise ValueError("this avatar has no dynamics")
+        t = self._tensors()
+        return self.dynamics.offsets(t["means"], t["features"], torch.from_numpy(self.check_code(z)))
+
+    @torch.no_grad()
+    def pose(self, z: np.ndarray | None = None, reference: bool = False) -> PosedGaussians:
+        """Posed, activated Gaussians at code z (None: the mean code; static avatars ignore z)."""
+        if self.dynamics is None:
+            return self.cloud.posed_static()
+        z = self.neutral_code() if z is None else z
+        off = self.offsets_reference(z) if reference else self.offsets(z)
+        posed = apply_offsets(self._tensors(), off, self.dynamics.rotation_op)
+        return to_posed_gaussians(posed)
+
+
+def load_avatar(path: str | Path) -> Avatar:
+    """Open a `.npga` checkpoint, a 3DGS `.ply`, or "demo"; raises AvatarFileError on bad input.
+
+    The type is decided by the file's first bytes, not its name.
+    """
+    from .checkpoint import MAGIC, read_avatar
+    from .ply import read_ply
+
+    if str(path) == "demo":
+        if not DEMO_AVATAR.is_file():
+            raise AvatarFileError(DEMO_AVATAR, "the bundled demo avatar is missing (build it with "
+                                  "`python -m npga_core.demo.build`)")
+        path = DEMO_AVATAR
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(len(MAGIC))
+    except FileNotFoundError:
+        raise AvatarFileError(p, "no such file") from None
+    except IsADirectoryError:
+        raise AvatarFileError(p, "is a directory, not an avatar file") from None
+    except OSError as e:
+        raise AvatarFileError(p, f"cannot open: {e.strerror or e}") from None
+    if head and MAGIC.startswith(head):  # whole signature, or a file cut inside it
+        return read_avatar(p)
+    if head.startswith(b"ply"):
+        return Avatar(read_ply(p), provenance={"source": str(p), "format": "3dgs-ply"}, source=str(p))
+    if not head:
+        raise AvatarFileError(p, "file is empty")
+    raise AvatarFileError(p, f"not an .npga checkpoint or a PLY file (starts with {head[:8]!r})")

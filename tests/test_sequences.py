@@ -1,0 +1,77 @@
+"""Sequence files: the project's format, npz/npy, MonoNPHM tracking folders, dimension checks."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from npga_core.errors import AvatarFileError
+from npga_core.sequences import ExpressionSequence, load_sequence
+
+
+def test_own_format_round_trip(tmp_path):
+    rng = np.random.default_rng(0)
+    seq = ExpressionSequence(rng.standard_normal((30, 100)).astype(np.float32), 30.0, "talk",
+                             rotation=rng.standard_normal((30, 3)).astype(np.float32),
+                             translation=np.zeros((30, 3), np.float32), scale=np.ones(30, np.float32),
+                             frame_names=[f"{i:05d}" for i in range(30)])
+    seq.save(tmp_path / "s.npzseq")
+    back = load_sequence(tmp_path / "s.npzseq")
+    assert np.array_equal(back.codes, seq.codes) and back.fps == 30.0 and back.name == "talk"
+    assert np.array_equal(back.rotation, seq.rotation) and back.frame_names == seq.frame_names
+    assert back.duration == pytest.approx(1.0)
+
+
+@pytest.mark.parametrize("key", ["expression", "expr", "z_exp"])
+def test_npz_common_keys(tmp_path, key):
+    codes = np.arange(12, dtype=np.float32).reshape(4, 3)
+    np.savez(tmp_path / "e.npz", **{key: codes})
+    assert np.array_equal(load_sequence(tmp_path / "e.npz").codes, codes)
+
+
+def test_plain_npy(tmp_path):
+    codes = np.ones((5, 100), np.float64)
+    np.save(tmp_path / "c.npy", codes)
+    s = load_sequence(tmp_path / "c.npy", fps=50)
+    assert s.codes.shape == (5, 100) and s.codes.dtype == np.float32 and s.fps == 50
+
+
+def _mononphm(root, stage, t=4, d=100):
+    table = np.random.default_rng(1).standard_normal((t, d)).astype(np.float32)
+    for i in range(t):
+        f = root / f"{i:05d}"
+        f.mkdir(parents=True)
+        np.save(f / "z_exp.npy", table[i : i + 1] if stage == 1 else table)
+        np.save(f / "rot.npy", np.full((1, 3), i, np.float32) if stage == 1 else np.full((t, 3), 7, np.float32))
+        np.save(f / "trans.npy", np.zeros((1, 3), np.float32) if stage == 1 else np.zeros((t, 3), np.float32))
+        np.save(f / "scale.npy", np.ones((1, 1), np.float32) if stage == 1 else np.ones((t, 1), np.float32))
+    return table
+
+
+@pytest.mark.parametrize("stage", [1, 2])
+def test_mononphm_folders(tmp_path, stage):
+    table = _mononphm(tmp_path / "track", stage)
+    s = load_sequence(tmp_path / "track")
+    assert np.array_equal(s.codes, table)
+    assert s.rotation.shape == (4, 3) and s.scale.shape == (4,) and s.translation.shape == (4, 3)
+    if stage == 1:
+        assert np.array_equal(s.rotation[:, 0], np.arange(4))
+
+
+def test_bad_sequences(tmp_path):
+    np.save(tmp_path / "nan.npy", np.full((3, 4), np.nan))
+    np.savez(tmp_path / "nokey.npz", foo=np.zeros((2, 2)))
+    np.save(tmp_path / "obj.npy", np.array([{"a": 1}], dtype=object), allow_pickle=True)
+    (tmp_path / "trunc.npzseq").write_bytes(b"PK\x03\x04garbage")
+    (tmp_path / "empty").mkdir()
+    for name, msg in [("nan.npy", "NaN"), ("nokey.npz", "no expression array"), ("obj.npy", "npy"),
+                      ("trunc.npzseq", "npz"), ("empty", "no frame folders"), ("missing.npy", "no such file")]:
+        with pytest.raises(AvatarFileError, match=msg) as e:
+            load_sequence(tmp_path / name)
+        assert "\n" not in str(e.value)
+
+
+def test_dimension_check_names_both_numbers():
+    s = ExpressionSequence(np.zeros((2, 64), np.float32))
+    with pytest.raises(AvatarFileError, match="64 dims, the avatar expects 100"):
+        s.check_dim(100, "x.npy")
