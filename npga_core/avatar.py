@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass, field
 from pathlib import Path
 
@@ -66,8 +67,11 @@ class Avatar:
         return self._canonical
 
     @torch.no_grad()
-    def offsets(self, z: np.ndarray, chunk: int = 2048) -> Offsets:
-        """Offsets at code z by the fast path (first layer's per-Gaussian part cached)."""
+    def offsets(self, z: np.ndarray, chunk: int = 2048, timings: dict[str, float] | None = None) -> Offsets:
+        """Offsets at code z by the fast path (first layer's per-Gaussian part cached).
+
+        If `timings` is given, the milliseconds spent in each network are stored under "F" and "G".
+        """
         if self.dynamics is None:
             raise ValueError("this avatar has no dynamics")
         zt = torch.from_numpy(self.check_code(z))
@@ -77,7 +81,10 @@ class Avatar:
             if key not in self._first_layer:
                 self._first_layer[key] = net.precompute(t["means"], t["features"])
             gi = (t["means"], t["features"]) if net.config.skips else None
+            t0 = time.perf_counter()
             outs[key] = net.evaluate(self._first_layer[key], zt, chunk=chunk, gaussian_inputs=gi)
+            if timings is not None:
+                timings[key] = (time.perf_counter() - t0) * 1000.0
         g = self.dynamics.G.split(outs["G"]) if "G" in outs else {}
         return Offsets(outs.get("F"), g)
 
@@ -90,12 +97,13 @@ class Avatar:
         return self.dynamics.offsets(t["means"], t["features"], torch.from_numpy(self.check_code(z)))
 
     @torch.no_grad()
-    def pose(self, z: np.ndarray | None = None, reference: bool = False) -> PosedGaussians:
+    def pose(self, z: np.ndarray | None = None, reference: bool = False,
+             timings: dict[str, float] | None = None) -> PosedGaussians:
         """Posed, activated Gaussians at code z (None: the mean code; static avatars ignore z)."""
         if self.dynamics is None:
             return self.cloud.posed_static()
         z = self.neutral_code() if z is None else z
-        off = self.offsets_reference(z) if reference else self.offsets(z)
+        off = self.offsets_reference(z) if reference else self.offsets(z, timings=timings)
         posed = apply_offsets(self._tensors(), off, self.dynamics.rotation_op)
         return to_posed_gaussians(posed)
 

@@ -1,0 +1,72 @@
+"""Temporal smoothing of expression-code sequences and a jitter measure.
+
+Both filters are causal and run over the whole table at once (T x D is small), so scrubbing a smoothed
+sequence shows exactly what playback shows.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+
+
+def exponential(codes: np.ndarray, alpha: float) -> np.ndarray:
+    """y_t = alpha x_t + (1 - alpha) y_{t-1}; alpha in (0, 1], 1 = no smoothing."""
+    if not 0.0 < alpha <= 1.0:
+        raise ValueError(f"alpha must be in (0, 1], got {alpha}")
+    x = np.asarray(codes, np.float64)
+    y = np.empty_like(x)
+    if len(x):
+        y[0] = x[0]
+    for t in range(1, len(x)):
+        y[t] = alpha * x[t] + (1.0 - alpha) * y[t - 1]
+    return y.astype(np.float32)
+
+
+def _alpha(cutoff: float | np.ndarray, dt: float) -> float | np.ndarray:
+    tau = 1.0 / (2.0 * math.pi * cutoff)
+    return 1.0 / (1.0 + tau / dt)
+
+
+def one_euro(codes: np.ndarray, fps: float, min_cutoff: float = 1.0, beta: float = 0.5,
+             d_cutoff: float = 1.0) -> np.ndarray:
+    """The 1-euro filter (Casiez et al. 2012) per dimension: the cutoff rises with the speed of change,
+    so slow jitter is removed while fast motion keeps little lag."""
+    if min_cutoff <= 0 or d_cutoff <= 0 or beta < 0 or fps <= 0:
+        raise ValueError("one_euro needs min_cutoff > 0, d_cutoff > 0, beta >= 0, fps > 0")
+    x = np.asarray(codes, np.float64)
+    y = np.empty_like(x)
+    if not len(x):
+        return y.astype(np.float32)
+    dt = 1.0 / fps
+    y[0] = x[0]
+    dx = np.zeros(x.shape[1])
+    a_d = _alpha(d_cutoff, dt)
+    for t in range(1, len(x)):
+        raw_dx = (x[t] - y[t - 1]) / dt
+        dx = a_d * raw_dx + (1.0 - a_d) * dx
+        a = _alpha(min_cutoff + beta * np.abs(dx), dt)
+        y[t] = a * x[t] + (1.0 - a) * y[t - 1]
+    return y.astype(np.float32)
+
+
+def jitter(codes: np.ndarray) -> float:
+    """RMS norm of the second difference per frame (0 for codes moving linearly)."""
+    x = np.asarray(codes, np.float64)
+    if len(x) < 3:
+        return 0.0
+    acc = x[2:] - 2.0 * x[1:-1] + x[:-2]
+    return float(np.sqrt(np.mean(np.sum(acc * acc, axis=1))))
+
+
+def smooth(codes: np.ndarray, method: str, fps: float, alpha: float = 0.5, min_cutoff: float = 1.0,
+           beta: float = 0.5) -> np.ndarray:
+    """Dispatch by name: "none", "exponential" or "one_euro"."""
+    if method == "none":
+        return np.asarray(codes, np.float32)
+    if method == "exponential":
+        return exponential(codes, alpha)
+    if method == "one_euro":
+        return one_euro(codes, fps, min_cutoff, beta)
+    raise ValueError(f"unknown smoothing {method!r}")

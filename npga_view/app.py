@@ -1,0 +1,550 @@
+"""The viewer window: input -> ViewerState -> PoseEngine (worker process) -> SplatRenderer -> imgui panels.
+
+The splat image is redrawn only when something it depends on changed (camera, posed cloud, mode, size);
+otherwise the last one is composited again, so the UI stays fluid while the avatar is still.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import datetime as _dt
+import json
+import time
+from pathlib import Path
+
+import numpy as np
+
+from npga_core.avatar import Avatar, load_avatar
+from npga_core.engine import PoseEngine
+from npga_core.errors import AvatarFileError
+from npga_core.orbit import OrbitCamera
+from npga_core.rig import fit_camera, load_rig
+from npga_core.sequences import ExpressionSequence, load_sequence
+from npga_core.smoothing import jitter, smooth
+
+from . import panels
+from .gl import window_context
+from .imgui_glfw import glfw, imgui
+from .panels.files import AVATAR_EXT
+from .panels.info import AppInfo
+from .playback import Playback
+from .renderer import SplatRenderer
+from .state import MAX_SLIDERS, ViewerState, config_dir
+
+SIDE_PANEL = 400  # logical pixels
+
+
+class ViewerApp:
+    """One window. Use `run()` for the interactive loop or `step()` to drive it frame by frame (tests)."""
+
+    def __init__(self, width: int = 1360, height: int = 900, visible: bool = True, vsync: bool = True,
+                 threads: int = 2, remember_recent: bool = True):
+        if not glfw.init():
+            raise RuntimeError("glfw could not initialise (no display? set DISPLAY or use Xvfb)")
+        glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 4)
+        glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
+        glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
+        glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
+        glfw.window_hint(glfw.VISIBLE, visible)
+        glfw.window_hint(glfw.SCALE_TO_MONITOR, True)
+        self.window = glfw.create_window(width, height, "npga-view", None, None)
+        if not self.window:
+            glfw.terminate()
+            raise RuntimeError("could not open an OpenGL 4.3 window")
+        glfw.make_context_current(self.window)
+        glfw.swap_interval(1 if vsync else 0)
+        glfw.set_drop_callback(self.window, self._on_drop)  # before imgui installs (and chains) its callbacks
+        imgui.create_context()
+        io = imgui.get_io()
+        io.set_ini_filename(None)
+        ptr = ctypes.cast(self.window, ctypes.c_void_p).value
+        imgui.backends.glfw_init_for_opengl(ptr, True)
+        imgui.backends.opengl3_init("#version 330")
+        self.ctx = window_context()
+        self.renderer = SplatRenderer(self.ctx, 64, 64)
+        self.state = ViewerState()
+        self.info = AppInfo()
+        self.threads = threads
+        self.remember_recent = remember_recent
+        if remember_recent:
+            self.state.load_recent()
+        self._load_presets()
+        self.avatar: Avatar | None = None
+        self.engine: PoseEngine | None = None
+        self.sequence: ExpressionSequence | None = None
+        self.codes: np.ndarray | None = None  # the sequence's (smoothed) codes
+        self._smooth_key: tuple | None = None
+        self.playback: Playback | None = None
+        self.rig: dict = {}
+        self._requested: np.ndarray | None = None
+        self._shown_code: np.ndarray | None = None
+        self._shown_frame: int | None = None
+        self._requested_frame: int | None = None
+        self._frame_of_request: dict[int, int | None] = {}  # pending request id -> sequence frame it shows
+        self._dirty = True
+        self._render_key: tuple | None = None
+        self._last_t = time.perf_counter()
+        self._fps_t: list[float] = []
+        self.frames = 0
+        self.first_pose_shown = False
+        self._writer = None
+        self.should_close = False
+
+    # ------------------------------------------------------------------------------------------ files
+    def open_avatar(self, path: str) -> bool:
+        """Load an avatar (errors go to the UI); starts the pose worker for animatable ones."""
+        try:
+            avatar = load_avatar(path)
+        except AvatarFileError as e:
+            self.state.report(str(e))
+            return False
+        if self.engine is not None:
+            self.engine.close()
+            self.engine = None
+        self.avatar = avatar
+        self.info.avatar = avatar
+        self.state.avatar_path = path if path == "demo" else str(Path(path).resolve())
+        k = avatar.expression.n_components if avatar.expression is not None else 0
+        self.state.sliders = np.zeros(k, np.float32)
+        self.state.n_sliders = min(max(self.state.n_sliders, 1), max(1, min(k, MAX_SLIDERS)))
+        self._requested = self._shown_code = None
+        self.first_pose_shown = False
+        if avatar.dynamics is not None and avatar.source:
+            self.engine = PoseEngine(avatar.source, len(avatar), avatar.cloud.sh.shape[1], avatar.cloud.latent_dim,
+                                     threads=self.threads)
+        else:
+            self.renderer.set_gaussians(avatar.pose())
+            self.first_pose_shown = True
+            self._dirty = True
+        if self.sequence is not None and self.sequence.dim != avatar.code_dim:
+            self.state.report(f"{self.state.sequence_path}: codes have {self.sequence.dim} dims, the avatar expects "
+                              f"{avatar.code_dim}; sequence closed")
+            self._close_sequence()
+        self.state.camera.fov_y = self.state.camera.fov_y or 20.0
+        self.frame_avatar(reset=True)
+        self._add_recent(path)
+        glfw.set_window_title(self.window, f"npga-view - {Path(path).name}")
+        return True
+
+    def open_sequence(self, path: str) -> bool:
+        """Load a sequence; refused (with both dimensions) if it does not fit the avatar."""
+        try:
+            seq = load_sequence(path)
+            if self.avatar is None or self.avatar.code_dim == 0:
+                raise AvatarFileError(path, "open an animatable avatar first (this one has no dynamics)")
+            seq.check_dim(self.avatar.code_dim, path)
+        except AvatarFileError as e:
+            self.state.report(str(e))
+            return False
+        self.sequence = seq
+        self.info.sequence = seq
+        self.playback = Playback(len(seq), seq.fps)
+        self.state.sequence_path = str(Path(path).resolve())
+        self.state.timeline.time_s = 0.0
+        self.state.follow_sequence = True
+        self._smooth_key = None
+        self._add_recent(path)
+        return True
+
+    def _close_sequence(self) -> None:
+        self.sequence = self.codes = self.playback = None
+        self.info.sequence = None
+        self.state.sequence_path = None
+
+    def _add_recent(self, path: str) -> None:
+        self.state.add_recent(path)
+        if self.remember_recent:
+            self.state.save_recent()
+
+    def _on_drop(self, window, paths) -> None:
+        for p in paths:
+            is_avatar = Path(p).suffix.lower() in AVATAR_EXT and Path(p).is_file()
+            self.state.actions.append(("open_avatar" if is_avatar else "open_sequence", p))
+
+    # ----------------------------------------------------------------------------------------- camera
+    def frame_avatar(self, reset: bool = False) -> None:
+        if self.avatar is None or len(self.avatar) == 0:
+            return
+        cam = self.state.camera
+        if reset:
+            self.state.camera = cam = OrbitCamera(fov_y=cam.fov_y or 20.0)
+        w, h = self._viewport()[2:]
+        cam.frame(np.asarray(self.avatar.cloud.means), aspect=w / max(h, 1))
+
+    def _viewport(self) -> tuple[int, int, int, int]:
+        """(x, y, w, h) of the splat view in framebuffer pixels (right of the side panel)."""
+        fw, fh = glfw.get_framebuffer_size(self.window)
+        ww, _ = glfw.get_window_size(self.window)
+        scale = fw / max(ww, 1)
+        side = min(int(SIDE_PANEL * scale), fw - 16)
+        return side, 0, max(1, fw - side), max(1, fh)
+
+    def current_camera(self):
+        x, y, w, h = self._viewport()
+        if self.state.rig_index >= 0 and self.rig:
+            names = list(self.rig)
+            return fit_camera(self.rig[names[self.state.rig_index % len(names)]], w, h)
+        return self.state.camera.camera(w, h)
+
+    def _mouse(self) -> None:
+        io = imgui.get_io()
+        if io.want_capture_mouse:
+            return
+        fw, _ = glfw.get_framebuffer_size(self.window)
+        ww, _ = glfw.get_window_size(self.window)
+        scale = fw / max(ww, 1)
+        x0 = self._viewport()[0] / scale
+        if io.mouse_pos.x < x0:
+            return
+        cam = self.state.camera
+        d = io.mouse_delta
+        if (d.x or d.y) and self.state.rig_index < 0:
+            if imgui.is_mouse_down(0) and io.key_shift:
+                cam.roll += d.x * 0.3
+            elif imgui.is_mouse_down(0):
+                cam.orbit(-d.x * 0.3, d.y * 0.3)
+            elif imgui.is_mouse_down(1) or imgui.is_mouse_down(2):
+                cam.pan(d.x * scale, d.y * scale, self._viewport()[3])
+        if io.mouse_wheel:
+            cam.zoom(io.mouse_wheel)
+
+    def _keys(self) -> None:
+        io = imgui.get_io()
+        if io.want_capture_keyboard:
+            return
+        cam = self.state.camera
+        k = imgui.Key
+        pressed = imgui.is_key_pressed
+        if pressed(k.left_arrow):
+            cam.orbit(-10, 0)
+        if pressed(k.right_arrow):
+            cam.orbit(10, 0)
+        if pressed(k.up_arrow):
+            cam.orbit(0, 10)
+        if pressed(k.down_arrow):
+            cam.orbit(0, -10)
+        if pressed(k.equal) or pressed(k.keypad_add):
+            cam.zoom(1)
+        if pressed(k.minus) or pressed(k.keypad_subtract):
+            cam.zoom(-1)
+        if pressed(k.q):
+            cam.roll -= 5
+        if pressed(k.e):
+            cam.roll += 5
+        if pressed(k.f):
+            self.frame_avatar()
+        if pressed(k.r):
+            self.frame_avatar(reset=True)
+        for key, name in ((k._1, "front"), (k._2, "three_quarter"), (k._3, "side"), (k._4, "top")):
+            if pressed(key):
+                cam.preset(name)
+        if pressed(k.space) and self.sequence is not None:
+            self.state.timeline.playing = not self.state.timeline.playing
+            self.state.follow_sequence = True
+        if pressed(k.comma):
+            self.state.actions.append(("step", -1))
+        if pressed(k.period):
+            self.state.actions.append(("step", 1))
+        if pressed(k.p):
+            self.state.actions.append(("screenshot", None))
+
+    # ---------------------------------------------------------------------------------------- actions
+    def _run_actions(self) -> None:
+        actions, self.state.actions = self.state.actions, []
+        for name, arg in actions:
+            try:
+                self._action(name, arg)
+            except (AvatarFileError, ValueError, OSError) as e:
+                self.state.report(str(e))
+
+    def _action(self, name: str, arg) -> None:
+        st, ex = self.state, (self.avatar.expression if self.avatar is not None else None)
+        if name == "open_avatar":
+            if arg:
+                self.open_avatar(str(arg))
+        elif name == "open_sequence":
+            if arg:
+                self.open_sequence(str(arg))
+        elif name == "preset":
+            st.camera.preset(arg)
+            st.rig_index = -1
+        elif name == "frame_avatar":
+            self.frame_avatar()
+        elif name == "reset_camera":
+            self.frame_avatar(reset=True)
+        elif name == "reset_expression":
+            st.sliders[:] = 0
+            st.follow_sequence = False
+        elif name == "random_expression" and ex is not None:
+            st.sliders[:] = 0
+            k = min(st.n_sliders, st.sliders.size)
+            st.sliders[:k] = np.clip(np.random.default_rng().standard_normal(k), -2.5, 2.5)
+            st.follow_sequence = False
+        elif name == "sliders_from_frame" and ex is not None and self.codes is not None:
+            st.sliders = ex.to_sliders(self.codes[self.info.frame]).astype(np.float32)
+            st.follow_sequence = False
+        elif name == "apply_preset" and ex is not None:
+            code = ex.named.get(arg)
+            code = np.asarray(st.presets[arg], np.float32) if code is None else code
+            st.sliders = ex.to_sliders(code).astype(np.float32)
+            st.follow_sequence = False
+        elif name == "save_preset" and ex is not None and arg:
+            st.presets[str(arg)] = [float(v) for v in self._slider_code()]
+            self._save_presets()
+        elif name == "step" and self.sequence is not None:
+            tl = st.timeline
+            tl.playing = False
+            f = (self.info.frame + int(arg)) % len(self.sequence)
+            tl.time_s = (f + 0.5) / self.sequence.fps
+            st.follow_sequence = True
+        elif name == "screenshot":
+            stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+            self.screenshot(arg or f"npga-view-{stamp}.png")
+        elif name == "record":
+            self._toggle_recording()
+        elif name == "save_session":
+            st.save_session(arg or "session.json")
+        elif name == "load_session":
+            self.load_session(arg or "session.json")
+        elif name == "load_rig" and arg:
+            self.rig = load_rig(arg)
+            st.rig_path = str(arg)
+            st.rig_index = 0
+            self.info.rig_names = list(self.rig)
+
+    def load_session(self, path: str) -> None:
+        """Restore camera, sliders, modes and open files from a session file."""
+        old_avatar, old_seq = self.state.avatar_path, self.state.sequence_path
+        self.state.load_session(path)
+        cam, sliders = self.state.camera, self.state.sliders.copy()
+        seq_path = self.state.sequence_path
+        if self.state.avatar_path and self.state.avatar_path != old_avatar:
+            self.open_avatar(self.state.avatar_path)
+        if seq_path and seq_path != old_seq:
+            self.open_sequence(seq_path)
+        self.state.camera = cam
+        if self.avatar is not None and sliders.size == self.state.sliders.size:
+            self.state.sliders = sliders
+        if self.state.rig_path:
+            try:
+                self.rig = load_rig(self.state.rig_path)
+                self.info.rig_names = list(self.rig)
+            except AvatarFileError as e:
+                self.state.report(str(e))
+                self.state.rig_index = -1
+
+    def _presets_file(self) -> Path:
+        return config_dir() / "presets.json"
+
+    def _load_presets(self) -> None:
+        try:
+            d = json.loads(self._presets_file().read_text())
+            self.state.presets = {str(k): [float(x) for x in v] for k, v in d.items()}
+        except (OSError, ValueError, TypeError, AttributeError):
+            self.state.presets = {}
+
+    def _save_presets(self) -> None:
+        from npga_core.atomic import atomic_write
+
+        text = json.dumps(self.state.presets).encode()
+        atomic_write(self._presets_file(), lambda fh: fh.write(text))
+
+    # ------------------------------------------------------------------------------------- dynamics
+    def _slider_code(self) -> np.ndarray:
+        ex = self.avatar.expression
+        return ex.from_sliders(self.state.sliders) if self.state.sliders.size else ex.mean.copy()
+
+    def _sequence_codes(self) -> np.ndarray:
+        tl = self.state.timeline
+        key = (id(self.sequence), tl.smoothing, tl.smooth_alpha, tl.euro_min_cutoff, tl.euro_beta)
+        if key != self._smooth_key:
+            seq = self.sequence
+            self.codes = smooth(seq.codes, tl.smoothing, seq.fps, tl.smooth_alpha, tl.euro_min_cutoff, tl.euro_beta)
+            self.info.jitter_raw = jitter(seq.codes)
+            self.info.jitter_smoothed = jitter(self.codes)
+            self._smooth_key = key
+        return self.codes
+
+    def _target_code(self, dt: float) -> np.ndarray | None:
+        a = self.avatar
+        if a is None or a.dynamics is None:
+            return None
+        if self.sequence is not None and self.state.follow_sequence:
+            codes = self._sequence_codes()
+            shown = self._shown_frame == self._requested_frame
+            frame = self.playback.advance(self.state.timeline, dt, shown)
+            self.info.frame = frame
+            self._requested_frame = frame
+            return codes[frame]
+        if a.expression is None:
+            return a.neutral_code()
+        return self._slider_code()
+
+    def _update_pose(self, dt: float) -> None:
+        code = self._target_code(dt)
+        eng = self.engine
+        if eng is None:
+            return
+        if code is not None and (self._requested is None or not np.array_equal(code, self._requested)):
+            req = eng.request(code)
+            self._requested = code.copy()
+            following = self.sequence is not None and self.state.follow_sequence
+            self._frame_of_request[req] = self._requested_frame if following else None
+        result = eng.poll()
+        if eng.last_error:
+            self.state.report(eng.last_error)
+            eng.last_error = None
+        if result is not None:
+            self.renderer.set_gaussians(result.posed)
+            result.release()
+            self.info.timings.update({k: v for k, v in result.timings.items() if k in ("F", "G")})
+            self._shown_code = result.code
+            frame = self._frame_of_request.get(result.request_id)
+            self._frame_of_request = {k: v for k, v in self._frame_of_request.items() if k > result.request_id}
+            if frame is not None and self.playback is not None:
+                self._shown_frame = frame
+                self.playback.shown(frame, time.perf_counter(), self.state.timeline.playing)
+            self.first_pose_shown = True
+            self._dirty = True
+        self.info.posing = eng.pending is not None
+        if self.playback is not None:
+            self.info.achieved_fps = self.playback.achieved_fps()
+            self.info.skipped = self.playback.skipped
+
+    # --------------------------------------------------------------------------------------- drawing
+    def _draw_splats(self) -> None:
+        cam = self.current_camera()
+        key = (cam.world_to_camera.tobytes(), cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, self.state.mode)
+        if self._dirty or key != self._render_key:
+            self.renderer.draw(cam, self.state.mode)
+            self._render_key = key
+            self._dirty = False
+            t = self.renderer.last_timings
+            self.info.timings.update({k: t[k] for k in ("sort", "upload", "preprocess", "draw") if k in t})
+            self.info.gaussians_drawn = int(t.get("visible", 0))
+        x, y, w, h = self._viewport()
+        bg = self.state.background if self.state.mode == "rgb" else (0.0, 0.0, 0.0)
+        self.renderer.present(self.ctx.screen, bg, flip_y=True, viewport=(x, y, w, h))
+
+    def _draw_ui(self) -> None:
+        fw, fh = glfw.get_window_size(self.window)
+        imgui.set_next_window_pos(imgui.ImVec2(0, 0))
+        imgui.set_next_window_size(imgui.ImVec2(SIDE_PANEL, fh))
+        flags = imgui.WindowFlags_.no_move | imgui.WindowFlags_.no_resize | imgui.WindowFlags_.no_collapse
+        imgui.begin("npga-view", None, flags)
+        if self.state.errors:
+            for msg in self.state.errors:
+                imgui.text_colored(imgui.ImVec4(1.0, 0.45, 0.4, 1.0), "")
+                imgui.same_line()
+                imgui.push_text_wrap_pos(0)
+                imgui.text_colored(imgui.ImVec4(1.0, 0.45, 0.4, 1.0), msg)
+                imgui.pop_text_wrap_pos()
+            if imgui.button("Dismiss"):
+                self.state.errors = []
+            imgui.separator()
+        for panel in panels.SIDE:
+            panel.draw(self.state, self.info)
+        imgui.end()
+        for panel in panels.OVERLAYS:
+            panel.draw(self.state, self.info)
+
+    def step(self) -> None:
+        """One frame: input, panels, actions, dynamics, splats, UI."""
+        glfw.poll_events()
+        now = time.perf_counter()
+        dt, self._last_t = now - self._last_t, now
+        self._fps_t = [t for t in self._fps_t if now - t < 1.0] + [now]
+        self.info.fps = len(self._fps_t) / max(1e-6, now - self._fps_t[0]) if len(self._fps_t) > 1 else 0.0
+        imgui.backends.opengl3_new_frame()
+        imgui.backends.glfw_new_frame()
+        imgui.new_frame()
+        self._mouse()
+        self._keys()
+        self._draw_ui()
+        self._run_actions()
+        self._update_pose(dt)
+        self.ctx.screen.use()
+        fw, fh = glfw.get_framebuffer_size(self.window)
+        self.ctx.viewport = (0, 0, fw, fh)
+        self.ctx.clear(0.08, 0.08, 0.09, 1.0)
+        self._draw_splats()
+        if self._writer is not None:
+            self._record_frame()
+        imgui.render()
+        imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
+        glfw.swap_buffers(self.window)
+        self.frames += 1
+        if glfw.window_should_close(self.window):
+            self.should_close = True
+
+    # ------------------------------------------------------------------------------------ snapshots
+    def read_window(self, viewport_only: bool = False) -> np.ndarray:
+        """RGB uint8 pixels of the back buffer as last drawn (top row first)."""
+        fw, fh = glfw.get_framebuffer_size(self.window)
+        vp = self._viewport() if viewport_only else (0, 0, fw, fh)
+        data = self.ctx.screen.read(viewport=vp, components=3, alignment=1)
+        return np.frombuffer(data, np.uint8).reshape(vp[3], vp[2], 3)[::-1].copy()
+
+    def screenshot(self, path: str, viewport_only: bool = False) -> str:
+        """Save the window (panels included) or only the splat view as PNG."""
+        import cv2
+
+        img = self.read_window(viewport_only)
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        if not cv2.imwrite(str(path), img[:, :, ::-1]):
+            raise OSError(f"{path}: could not write the PNG")
+        self.info.last_screenshot = str(path)
+        return str(path)
+
+    def _toggle_recording(self) -> None:
+        import cv2
+
+        if self._writer is not None:
+            self._writer.release()
+            self._writer = None
+            self.info.recording = False
+            return
+        x, y, w, h = self._viewport()
+        w, h = w // 2 * 2, h // 2 * 2
+        stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+        self._record_path = f"npga-view-{stamp}.mp4"
+        self._writer = cv2.VideoWriter(self._record_path, cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (w, h))
+        self._record_size = (w, h)
+        self.info.recording = True
+
+    def _record_frame(self) -> None:
+        img = self.read_window(viewport_only=True)
+        w, h = self._record_size
+        self._writer.write(np.ascontiguousarray(img[:h, :w, ::-1]))
+
+    # ------------------------------------------------------------------------------------------ loop
+    def run(self, screenshot: str | None = None, quit_after_frames: int | None = None) -> int:
+        """The interactive loop. With `quit_after_frames`, count frames from the first drawn pose."""
+        counted = 0
+        try:
+            while not self.should_close:
+                self.step()
+                if quit_after_frames is not None and (self.first_pose_shown or self.avatar is None):
+                    counted += 1
+                    if counted >= quit_after_frames:
+                        if screenshot:
+                            self.screenshot(screenshot)
+                        break
+        finally:
+            self.close()
+        return 0
+
+    def close(self) -> None:
+        if self._writer is not None:
+            self._writer.release()
+            self._writer = None
+        if self.engine is not None:
+            self.engine.close()
+            self.engine = None
+        if self.window is not None:
+            imgui.backends.opengl3_shutdown()
+            imgui.backends.glfw_shutdown()
+            imgui.destroy_context()
+            glfw.destroy_window(self.window)
+            self.window = None
+            glfw.terminate()

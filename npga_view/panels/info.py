@@ -1,0 +1,35 @@
+"""`AppInfo`: what the app shows the panels each frame (read-only for them)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, field
+
+from npga_core.avatar import Avatar
+from npga_core.sequences import ExpressionSequence
+
+
+@dataclass
+class AppInfo:
+    avatar: Avatar | None = None
+    sequence: ExpressionSequence | None = None
+    frame: int = 0
+    fps: float = 0.0  # UI frames per second
+    timings: dict[str, float] = field(default_factory=dict)  # ms per stage
+    gaussians_drawn: int = 0
+    posing: bool = False  # a dynamics request is pending
+    achieved_fps: float = 0.0
+    skipped: int = 0
+    jitter_raw: float = 0.0
+    jitter_smoothed: float = 0.0
+    recording: bool = False
+    rig_names: list[str] = field(default_factory=list)
+    last_screenshot: str | None = None
+    rects: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)  # widget -> x0, y0, x1, y1
+
+
+def remember(info: AppInfo, name: str) -> None:
+    """Record the last widget's screen rectangle (tests drive widgets by these)."""
+    from imgui_bundle import imgui
+
+    a, b = imgui.get_item_rect_min(), imgui.get_item_rect_max()
+    info.rects[name] = (a.x, a.y, b.x, b.y)

@@ -1,0 +1,34 @@
+"""Stats: Gaussian counts, frame rate, per-stage times."""
+
+from __future__ import annotations
+
+from imgui_bundle import imgui
+
+from ..state import ViewerState
+from .info import AppInfo
+
+STAGES = (("F", "dynamics F"), ("G", "dynamics G"), ("cnn", "CNN"), ("sort", "sort"), ("upload", "upload"),
+          ("preprocess", "project"), ("draw", "draw"))
+
+
+def draw(state: ViewerState, info: AppInfo) -> None:
+    """An overlay in the top-right corner of the splat view."""
+    vp = imgui.get_main_viewport()
+    imgui.set_next_window_pos(imgui.ImVec2(vp.pos.x + vp.size.x - 10, vp.pos.y + 10), imgui.Cond_.always,
+                              imgui.ImVec2(1.0, 0.0))
+    imgui.set_next_window_bg_alpha(0.55)
+    flags = (imgui.WindowFlags_.no_decoration | imgui.WindowFlags_.always_auto_resize | imgui.WindowFlags_.no_move
+             | imgui.WindowFlags_.no_focus_on_appearing | imgui.WindowFlags_.no_nav)
+    imgui.begin("Stats", None, flags)
+    _body(info)
+    imgui.end()
+
+
+def _body(info: AppInfo) -> None:
+    a = info.avatar
+    total = len(a) if a is not None else 0
+    imgui.text(f"Gaussians: {total:,} total, {info.gaussians_drawn:,} in front of the camera")
+    imgui.text(f"UI: {info.fps:5.1f} fps" + ("   posing..." if info.posing else ""))
+    for key, label in STAGES:
+        if key in info.timings:
+            imgui.text(f"{label:>12}: {info.timings[key]:8.1f} ms")

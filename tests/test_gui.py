@@ -1,0 +1,213 @@
+"""The real window under Xvfb, driven through imgui input events like a user's mouse."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+import time
+
+import numpy as np
+import pytest
+
+from npga_core.avatar import DEMO_AVATAR
+from npga_core.checkpoint import save_avatar
+from npga_core.sequences import ExpressionSequence
+from npga_core.synthetic import make_synthetic_avatar
+
+from .xvfb import start_xvfb, stop
+
+pytestmark = pytest.mark.gui
+
+
+@pytest.fixture(scope="module")
+def display():
+    try:
+        proc, disp = start_xvfb()
+    except RuntimeError as e:
+        if os.environ.get("CI"):
+            raise
+        pytest.skip(str(e))
+    old = os.environ.get("DISPLAY")
+    os.environ["DISPLAY"] = disp
+    yield disp
+    if old is None:
+        os.environ.pop("DISPLAY", None)
+    else:
+        os.environ["DISPLAY"] = old
+    stop(proc)
+
+
+@pytest.fixture(scope="module")
+def avatar_path(tmp_path_factory):
+    """The demo avatar when it is built, else a small synthetic one."""
+    if DEMO_AVATAR.is_file():
+        return "demo"
+    p = tmp_path_factory.mktemp("gui") / "syn.npga"
+    save_avatar(make_synthetic_avatar(3000, seed=2), p)
+    return str(p)
+
+
+@pytest.fixture
+def app(display, tmp_path, monkeypatch):
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
+    from npga_view.app import ViewerApp
+
+    a = ViewerApp(1000, 990, vsync=False, threads=1, remember_recent=False)
+    yield a
+    a.close()
+
+
+def run_until(app, cond, timeout=60.0):
+    end = time.monotonic() + timeout
+    while time.monotonic() < end:
+        app.step()
+        if cond():
+            return True
+    return False
+
+
+def settle(app, frames=3):
+    """Step until no pose is pending and the splats were redrawn, then a few more frames."""
+    assert run_until(app, lambda: app.engine is None or (app.engine.pending is None and not app._dirty))
+    for _ in range(frames):
+        app.step()
+
+
+def click(app, name, frames=2):
+    """Press and release the left button at the centre of a remembered widget."""
+    from imgui_bundle import imgui
+
+    x0, y0, x1, y1 = app.info.rects[name]
+    io = imgui.get_io()
+    io.add_mouse_pos_event((x0 + x1) / 2, (y0 + y1) / 2)
+    app.step()
+    io.add_mouse_button_event(0, True)
+    app.step()
+    io.add_mouse_button_event(0, False)
+    for _ in range(frames):
+        app.step()
+
+
+def drag(app, name, fraction):
+    """Drag a slider's grab from its centre to `fraction` of its width."""
+    from imgui_bundle import imgui
+
+    x0, y0, x1, y1 = app.info.rects[name]
+    io = imgui.get_io()
+    y = (y0 + y1) / 2
+    io.add_mouse_pos_event((x0 + x1) / 2, y)
+    app.step()
+    io.add_mouse_button_event(0, True)
+    app.step()
+    for t in np.linspace(0.5, fraction, 6):
+        io.add_mouse_pos_event(x0 + (x1 - x0) * t, y)
+        app.step()
+    io.add_mouse_button_event(0, False)
+    app.step()
+
+
+def test_open_move_slider_and_see_pixels_change(app, avatar_path):
+    assert app.open_avatar(avatar_path)
+    settle(app)
+    before = app.read_window(viewport_only=True)
+    assert before.std() > 5, "the avatar should be visible"
+    drag(app, "slider0", 0.98)
+    assert app.state.sliders[0] > 2.0
+    settle(app)
+    after = app.read_window(viewport_only=True)
+    changed = np.abs(after.astype(int) - before.astype(int)).max(axis=2) > 8
+    assert changed.mean() > 0.002, f"only {changed.mean():.4%} of the pixels changed"
+
+
+def test_load_sequence_through_the_ui_and_play(app, avatar_path, tmp_path):
+    from npga_view.panels import files
+
+    assert app.open_avatar(avatar_path)
+    ex = app.avatar.expression
+    t = np.arange(50)
+    codes = np.stack([ex.from_sliders(np.array([2.5 * np.sin(i / 4.0), 2 * np.cos(i / 5.0)])) for i in t])
+    seq_path = tmp_path / "wave.npzseq"
+    ExpressionSequence(codes.astype(np.float32), 25.0, "wave").save(seq_path)
+    settle(app)
+    files._ui["path"] = str(seq_path)
+    click(app, "open_sequence")
+    assert app.sequence is not None and len(app.sequence) == 50, app.state.errors
+    first = app.read_window(viewport_only=True)
+    click(app, "play")
+    assert app.state.timeline.playing
+    frames_seen = set()
+    end = time.monotonic() + 8
+    while time.monotonic() < end:
+        app.step()
+        frames_seen.add(app._shown_frame)
+    assert len(frames_seen - {None}) >= 2, "playback should show several frames"
+    assert app.playback.achieved_fps() > 0
+    later = app.read_window(viewport_only=True)
+    assert np.abs(later.astype(int) - first.astype(int)).max() > 8
+
+
+def test_screenshot_button_writes_the_window(app, avatar_path, tmp_path, monkeypatch):
+    monkeypatch.chdir(tmp_path)
+    assert app.open_avatar(avatar_path)
+    settle(app)
+    click(app, "screenshot", frames=1)
+    import cv2
+
+    shots = list(tmp_path.glob("npga-view-*.png"))
+    assert len(shots) == 1
+    img = cv2.imread(str(shots[0]))
+    assert img.shape[:2] == app.read_window().shape[:2] and img.std() > 5
+
+
+def test_bad_files_show_in_the_ui_and_the_app_keeps_running(app, avatar_path, tmp_path):
+    assert app.open_avatar(avatar_path)
+    bad = tmp_path / "bad.npga"
+    bad.write_bytes(b"\x89NPGA\r\n\x1a" + b"\x00" * 4)
+    app.state.actions.append(("open_avatar", str(bad)))
+    np.save(tmp_path / "wrong_dim.npy", np.zeros((10, 64), np.float32))
+    app.state.actions.append(("open_sequence", str(tmp_path / "wrong_dim.npy")))
+    for _ in range(3):
+        app.step()
+    errs = " | ".join(app.state.errors)
+    assert "bad.npga: truncated" in errs
+    assert f"64 dims, the avatar expects {app.avatar.code_dim}" in errs
+    assert app.avatar is not None and app.sequence is None
+    settle(app)
+    assert app.read_window(viewport_only=True).std() > 5
+
+
+def test_session_round_trip(app, avatar_path, tmp_path):
+    assert app.open_avatar(avatar_path)
+    app.state.camera.orbit(30, 10)
+    app.state.sliders[:2] = [1.5, -0.5]
+    app.state.mode = "depth"
+    app.state.save_session(tmp_path / "s.json")
+    app.state.camera.orbit(-60, 0)
+    app.state.sliders[:] = 0
+    app.state.mode = "rgb"
+    app.load_session(str(tmp_path / "s.json"))
+    assert app.state.mode == "depth" and app.state.sliders[0] == pytest.approx(1.5)
+    assert app.state.camera.yaw == pytest.approx(30)
+
+
+def test_cli_screenshot_and_quit(display, avatar_path, tmp_path):
+    out = tmp_path / "shot.png"
+    env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(tmp_path))
+    r = subprocess.run([sys.executable, "-m", "npga_view.cli", avatar_path, "--size", "800x600", "--screenshot",
+                        str(out), "--quit-after-frames", "2", "--threads", "1"], env=env, capture_output=True,
+                       text=True, timeout=180)
+    assert r.returncode == 0, r.stderr
+    import cv2
+
+    img = cv2.imread(str(out))
+    assert img is not None and img.shape[:2] == (600, 800)
+
+
+def test_cli_bad_avatar_exits_2(display, tmp_path):
+    bad = tmp_path / "x.npga"
+    bad.write_bytes(b"nonsense")
+    env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(tmp_path))
+    r = subprocess.run([sys.executable, "-m", "npga_view.cli", str(bad), "--screenshot", str(tmp_path / "s.png")],
+                       env=env, capture_output=True, text=True, timeout=120)
+    assert r.returncode == 2 and "Traceback" not in r.stderr and str(bad) in r.stderr
