@@ -293,6 +293,10 @@ def _check_header_schema(header: dict) -> None:
     parts = g.get("part_names", [])
     if not isinstance(parts, list) or not all(isinstance(p, str) for p in parts) or len(parts) > 32767:
         raise _Invalid("gaussians.part_names must be a list of strings")
+    if len(set(parts)) != len(parts):
+        raise _Invalid("gaussians.part_names has duplicate names")
+    if not isinstance(header.get("units", "m"), str):
+        raise _Invalid("units must be a string")
     for key in ("dynamics", "cnn", "expression", "provenance"):
         if header.get(key) is not None and not isinstance(header[key], dict):
             raise _Invalid(f"header.{key} must be an object or null")
@@ -368,6 +372,10 @@ def _map_tensors(path: Path, header: dict, data_start: int) -> dict[str, np.ndar
         end_needed = max(end_needed, data_start + off + nbytes)
     if end_needed > size:
         raise _Invalid(f"truncated: data needs {end_needed} bytes, the file has {size}")
+    if "data_nbytes" in header:
+        declared = _int(header, "data_nbytes", "header", 0, 2**62)
+        if data_start + declared > size:
+            raise _Invalid(f"truncated: the data section is {declared} bytes, the file has {size - data_start}")
     spans = sorted((off, off + nb, n) for n, (_, _, off, nb) in entries.items() if nb)
     for (_, e0, n0), (s1, _, n1) in zip(spans, spans[1:], strict=False):
         if s1 < e0:

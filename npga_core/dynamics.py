@@ -22,6 +22,21 @@ from torch import nn
 
 from .gaussians import GaussianCloud, PosedGaussians
 
+def strict_int(v: object, what: str) -> int:
+    """`v` if it is a JSON integer (not a bool, float or string), else ValueError."""
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise ValueError(f"{what} must be an integer, got {v!r}")
+    return v
+
+
+def _strict_str(v: object, what: str) -> str:
+    if not isinstance(v, str):
+        raise ValueError(f"{what} must be a string, got {v!r}")
+    return v
+
+
+MAX_POS_FREQS = 20
+
 ACTIVATIONS: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
     "relu": torch.relu,
     "silu": nn.functional.silu,
@@ -74,7 +89,7 @@ def _add_rotation(c: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
 
 
 #: The group operations, written down once. Keys are attribute names; "rotation" has two conventions,
-#: chosen per avatar by `architecture.rotation_op` ("compose" default, "add" as in GaussianHeadAvatar).
+#: chosen per avatar by the header key `dynamics.rotation_op` ("compose" default, "add" as in GaussianHeadAvatar).
 ATTRIBUTE_OPS: dict[str, AttributeOp] = {
     "position": AttributeOp("mu + d", "0", lambda c, d: c + d),
     "rotation": AttributeOp("normalize(normalize((1,0,0,0) + d) * normalize(q))", "0 (identity rotation)",
@@ -149,6 +164,8 @@ class MLPConfig:
             raise ValueError(f"depth must be >= 1, got {self.depth}")
         if self.hidden < 1 or self.feature_dim < 0 or self.code_dim < 0 or self.pos_freqs < 0:
             raise ValueError("hidden, feature_dim, code_dim and pos_freqs must be non-negative (hidden >= 1)")
+        if self.pos_freqs > MAX_POS_FREQS:
+            raise ValueError(f"pos_freqs {self.pos_freqs} exceeds {MAX_POS_FREQS} (float32 sin/cos lose all meaning)")
         if self.activation not in ACTIVATIONS:
             raise ValueError(f"unknown activation {self.activation!r} (known: {', '.join(ACTIVATIONS)})")
         for s in self.skips:
@@ -182,14 +199,14 @@ class MLPConfig:
     def from_json(d: dict) -> MLPConfig:
         try:
             cfg = MLPConfig(
-                feature_dim=int(d["feature_dim"]),
-                code_dim=int(d["code_dim"]),
-                outputs=[(str(n), int(w)) for n, w in d["outputs"]],
-                hidden=int(d.get("hidden", 256)),
-                depth=int(d.get("depth", 6)),
-                activation=str(d.get("activation", "relu")),
-                pos_freqs=int(d.get("pos_freqs", 0)),
-                skips=[int(s) for s in d.get("skips", [])],
+                feature_dim=strict_int(d["feature_dim"], "feature_dim"),
+                code_dim=strict_int(d["code_dim"], "code_dim"),
+                outputs=[(_strict_str(n, "output name"), strict_int(w, f"width of {n}")) for n, w in d["outputs"]],
+                hidden=strict_int(d.get("hidden", 256), "hidden"),
+                depth=strict_int(d.get("depth", 6), "depth"),
+                activation=_strict_str(d.get("activation", "relu"), "activation"),
+                pos_freqs=strict_int(d.get("pos_freqs", 0), "pos_freqs"),
+                skips=[strict_int(s, "skip") for s in d.get("skips", [])],
             )
         except (KeyError, TypeError, ValueError) as e:
             raise ValueError(f"malformed MLP architecture: {e}") from None

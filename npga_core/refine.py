@@ -8,7 +8,13 @@ import numpy as np
 import torch
 from torch import nn
 
-from .dynamics import ACTIVATIONS
+from .dynamics import ACTIVATIONS, strict_int
+
+
+def _activation_name(a: object) -> str:
+    if not isinstance(a, str):
+        raise ValueError(f"activation must be a string or null, got {a!r}")
+    return a
 
 
 @dataclass
@@ -58,8 +64,12 @@ class CNNConfig:
     @staticmethod
     def from_json(d: dict) -> CNNConfig:
         try:
-            layers = [ConvLayer(int(i), int(o), int(k), None if a is None else str(a)) for i, o, k, a in d["layers"]]
-            cfg = CNNConfig(layers, bool(d.get("residual", True)))
+            layers = [ConvLayer(strict_int(i, "in_channels"), strict_int(o, "out_channels"), strict_int(k, "kernel"),
+                                None if a is None else _activation_name(a)) for i, o, k, a in d["layers"]]
+            residual = d.get("residual", True)
+            if not isinstance(residual, bool):
+                raise ValueError(f"residual must be true or false, got {residual!r}")
+            cfg = CNNConfig(layers, residual)
         except (KeyError, TypeError, ValueError) as e:
             raise ValueError(f"malformed CNN architecture: {e}") from None
         cfg.validate()

@@ -99,11 +99,13 @@ def _load_npz(path: Path) -> ExpressionSequence:
             fps = float(z["fps"]) if "fps" in keys else DEFAULT_FPS
             name = str(z["name"]) if "name" in keys else path.stem
             opt = {k: np.asarray(z[k], np.float32) for k in ("rotation", "translation", "scale") if k in keys}
-            names = [str(s) for s in z["frame_names"]] if "frame_names" in keys else None
+            names = [str(s) for s in np.atleast_1d(z["frame_names"])] if "frame_names" in keys else None
     except AvatarFileError:
         raise
-    except (ValueError, OSError, zipfile.BadZipFile, EOFError, KeyError) as e:
+    except (ValueError, TypeError, OSError, zipfile.BadZipFile, EOFError, KeyError) as e:
         raise AvatarFileError(path, f"not a readable npz ({e})") from None
+    if names is not None and len(names) != codes.shape[0]:
+        raise AvatarFileError(path, f"{len(names)} frame names for {codes.shape[0]} frames")
     return ExpressionSequence(codes, fps, name, frame_names=names, **opt)
 
 
@@ -123,6 +125,8 @@ def load_sequence(path: str | Path, fps: float | None = None) -> ExpressionSeque
             raise AvatarFileError(path, f"not a readable .npy array ({e})") from None
         if codes.ndim == 1:
             codes = codes[None]
+        elif codes.ndim == 3 and codes.shape[1] == 1:
+            codes = codes[:, 0]
         if codes.dtype.kind not in "fiu":
             raise AvatarFileError(path, f"array has dtype {codes.dtype}, expected numbers")
         seq = ExpressionSequence(np.asarray(codes, np.float32), DEFAULT_FPS, path.stem)

@@ -36,6 +36,9 @@ def _load(path: Path) -> np.ndarray:
 def _row(path: Path, t_index: int, n_frames: int, width: int | None) -> np.ndarray:
     """Frame t's row from a per-frame (1, W)/(W,) array or a whole (T, W) table."""
     a = _load(path)
+    if a.shape[-2:] == (3, 3) and (a.ndim == 2 or (a.ndim == 3 and a.shape[0] in (1, n_frames))):
+        m = a if a.ndim == 2 else a[0] if a.shape[0] == 1 else a[t_index]
+        return m.reshape(-1)  # a rotation matrix: 9 values, turned into axis-angle by the caller
     if a.ndim == 2 and a.shape[0] == n_frames and n_frames > 1:
         row = a[t_index]
     elif a.ndim <= 2 and (a.ndim < 2 or a.shape[0] == 1):

@@ -189,3 +189,15 @@ def test_real_process_exit_code_and_no_traceback(tmp_path):
     assert r.returncode == 2
     assert r.stderr.strip().count("\n") == 0 and "Traceback" not in r.stderr and str(bomb) in r.stderr
     assert not (tmp_path / "PWNED").exists()
+
+
+@pytest.mark.parametrize("mutate,msg", [
+    (lambda h, d: h["cnn"].update(residual="false"), "residual"),
+    (lambda h, d: h["dynamics"]["G"].update(hidden=256.0), "integer"),
+    (lambda h, d: h["dynamics"]["F"].update(pos_freqs=500), "pos_freqs"),
+    (lambda h, d: h["gaussians"].update(part_names=["a", "a", "b"]), "duplicate"),
+    (lambda h, d: h.update(data_nbytes=10**9), "truncated"),
+])
+def test_loosely_typed_headers_are_refused(tamper, mutate, msg):
+    with pytest.raises(AvatarFileError, match=msg):
+        load_avatar(tamper(mutate))

@@ -75,3 +75,25 @@ def test_dimension_check_names_both_numbers():
     s = ExpressionSequence(np.zeros((2, 64), np.float32))
     with pytest.raises(AvatarFileError, match="64 dims, the avatar expects 100"):
         s.check_dim(100, "x.npy")
+
+
+def test_mononphm_rotation_matrices_with_three_frames(tmp_path):
+    import math
+
+    for i in range(3):
+        f = tmp_path / "t" / f"{i:05d}"
+        f.mkdir(parents=True)
+        np.save(f / "z_exp.npy", np.zeros((1, 5), np.float32))
+        a = 0.1 * (i + 1)
+        rot = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]], np.float32)
+        np.save(f / "rot.npy", rot)
+    s = load_sequence(tmp_path / "t")
+    np.testing.assert_allclose(s.rotation, [[0.1, 0, 0], [0.2, 0, 0], [0.3, 0, 0]], atol=1e-5)
+
+
+def test_npz_with_bad_fps_or_names_is_a_clean_error(tmp_path):
+    np.savez(tmp_path / "a.npz", codes=np.zeros((3, 4)), fps=np.ones(3))
+    np.savez(tmp_path / "b.npz", codes=np.zeros((3, 4)), frame_names=np.array(["x", "y"]))
+    for name in ("a.npz", "b.npz"):
+        with pytest.raises(AvatarFileError):
+            load_sequence(tmp_path / name)
