@@ -22,6 +22,7 @@ from torch import nn
 
 from .gaussians import GaussianCloud, PosedGaussians
 
+
 def strict_int(v: object, what: str) -> int:
     """`v` if it is a JSON integer (not a bool, float or string), else ValueError."""
     if isinstance(v, bool) or not isinstance(v, int):
