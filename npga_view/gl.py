@@ -1,0 +1,142 @@
+"""OpenGL context creation: headless (EGL, or OSMesa through ctypes) and the window's current context.
+
+The renderer needs OpenGL 4.3 (compute shaders, shader storage buffers).
+"""
+
+from __future__ import annotations
+
+import ctypes
+import ctypes.util
+
+import moderngl
+
+REQUIRED_GL = 430
+
+# OSMesa constants (GL/osmesa.h)
+_OSMESA_RGBA = 0x1908
+_OSMESA_FORMAT = 0x22
+_OSMESA_DEPTH_BITS = 0x30
+_OSMESA_STENCIL_BITS = 0x31
+_OSMESA_ACCUM_BITS = 0x32
+_OSMESA_PROFILE = 0x33
+_OSMESA_CORE_PROFILE = 0x34
+_OSMESA_CONTEXT_MAJOR_VERSION = 0x36
+_OSMESA_CONTEXT_MINOR_VERSION = 0x37
+_GL_UNSIGNED_BYTE = 0x1401
+
+
+class GLUnavailableError(RuntimeError):
+    """No OpenGL 4.3 context could be created; the message says what was tried and why it failed."""
+
+
+class _OSMesaLoader:
+    """A moderngl function loader for a current OSMesa context (keeps the context and its buffer alive)."""
+
+    def __init__(self, lib: ctypes.CDLL, context: int, buffer: ctypes.Array, size: tuple[int, int]) -> None:
+        self._lib = lib
+        self._context = context
+        self._buffer = buffer
+        self._size = size
+        self._get = lib.OSMesaGetProcAddress
+        self._get.restype = ctypes.c_void_p
+        self._get.argtypes = [ctypes.c_char_p]
+
+    def load_opengl_function(self, name: str) -> int:
+        return self._get(name.encode()) or 0
+
+    def __enter__(self) -> None:
+        if self._context:
+            self._lib.OSMesaMakeCurrent(self._context, self._buffer, _GL_UNSIGNED_BYTE, *self._size)
+
+    def __exit__(self, *args) -> None:
+        pass
+
+    def release(self) -> None:
+        if self._context:
+            self._lib.OSMesaDestroyContext(ctypes.c_void_p(self._context))
+            self._context = 0
+
+
+def _load_osmesa() -> ctypes.CDLL:
+    names = [ctypes.util.find_library("OSMesa"), "libOSMesa.so.8", "libOSMesa.so.6", "libOSMesa.so"]
+    errors = []
+    for name in names:
+        if not name:
+            continue
+        try:
+            return ctypes.CDLL(name)
+        except OSError as exc:
+            errors.append(str(exc))
+    raise GLUnavailableError("libOSMesa not found (install libosmesa6)" + (f": {errors[-1]}" if errors else ""))
+
+
+def create_osmesa_context(width: int = 16, height: int = 16) -> moderngl.Context:
+    """A GL 4.5 core context from Mesa's OSMesa (software), made current and wrapped by moderngl.
+
+    It becomes moderngl's default context of this process. Render into your own framebuffers; the OSMesa
+    default framebuffer is a small RGBA8 buffer.
+    """
+    lib = _load_osmesa()
+    if not hasattr(lib, "OSMesaCreateContextAttribs"):
+        raise GLUnavailableError("libOSMesa lacks OSMesaCreateContextAttribs (need Mesa >= 11.2)")
+    lib.OSMesaCreateContextAttribs.restype = ctypes.c_void_p
+    lib.OSMesaCreateContextAttribs.argtypes = [ctypes.POINTER(ctypes.c_int), ctypes.c_void_p]
+    lib.OSMesaMakeCurrent.restype = ctypes.c_ubyte
+    lib.OSMesaMakeCurrent.argtypes = [ctypes.c_void_p, ctypes.c_void_p, ctypes.c_uint, ctypes.c_int, ctypes.c_int]
+    lib.OSMesaDestroyContext.argtypes = [ctypes.c_void_p]
+    attribs = [
+        _OSMESA_FORMAT, _OSMESA_RGBA,
+        _OSMESA_DEPTH_BITS, 24,
+        _OSMESA_STENCIL_BITS, 8,
+        _OSMESA_ACCUM_BITS, 0,
+        _OSMESA_PROFILE, _OSMESA_CORE_PROFILE,
+        _OSMESA_CONTEXT_MAJOR_VERSION, 4,
+        _OSMESA_CONTEXT_MINOR_VERSION, 5,
+        0,
+    ]
+    context = lib.OSMesaCreateContextAttribs((ctypes.c_int * len(attribs))(*attribs), None)
+    if not context:
+        raise GLUnavailableError("OSMesaCreateContextAttribs failed to create a GL 4.5 core context")
+    buffer = (ctypes.c_ubyte * (width * height * 4))()
+    if not lib.OSMesaMakeCurrent(context, buffer, _GL_UNSIGNED_BYTE, width, height):
+        lib.OSMesaDestroyContext(context)
+        raise GLUnavailableError("OSMesaMakeCurrent failed")
+    loader = _OSMesaLoader(lib, context, buffer, (width, height))
+    moderngl.init_context(loader)
+    ctx = moderngl.get_context()
+    ctx.extra = {"osmesa_loader": loader}  # keep the loader (and the buffer) alive with the context
+    return ctx
+
+
+def _check_version(ctx: moderngl.Context, backend: str) -> moderngl.Context:
+    if ctx.version_code < REQUIRED_GL:
+        version = ctx.version_code
+        ctx.release()
+        raise GLUnavailableError(f"{backend} gives OpenGL {version // 100}.{version % 100 // 10}, need 4.3")
+    return ctx
+
+
+def create_headless_context(backend: str = "auto") -> moderngl.Context:
+    """A headless OpenGL >= 4.3 context: EGL first, then OSMesa; `backend` may force "egl" or "osmesa".
+
+    Raises GLUnavailableError naming each backend tried and why it failed.
+    """
+    if backend not in ("auto", "egl", "osmesa"):
+        raise ValueError(f"unknown GL backend {backend!r} (auto, egl, osmesa)")
+    errors = []
+    if backend in ("auto", "egl"):
+        try:
+            return _check_version(moderngl.create_standalone_context(require=REQUIRED_GL, backend="egl"), "EGL")
+        except Exception as exc:  # noqa: BLE001 - any failure means: try the next backend
+            errors.append(f"EGL: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}")
+    if backend in ("auto", "osmesa"):
+        try:
+            return _check_version(create_osmesa_context(), "OSMesa")
+        except Exception as exc:  # noqa: BLE001
+            errors.append(f"OSMesa: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}")
+    raise GLUnavailableError("no headless OpenGL 4.3 context (" + "; ".join(errors) + ")")
+
+
+def window_context() -> moderngl.Context:
+    """Wrap the GL context current on this thread (e.g. a glfw window's) for the renderer."""
+    return _check_version(moderngl.create_context(require=REQUIRED_GL), "the window context")

@@ -1,0 +1,23 @@
+// Shared definitions of the splat passes (inserted by the renderer's `#include` resolver).
+
+// Gaussians with alpha below this are skipped, as in 3DGS.
+const float MIN_ALPHA = 1.0 / 255.0;
+// Maximum alpha of one Gaussian, as in 3DGS.
+const float MAX_ALPHA = 0.99;
+
+// One projected Gaussian, written by splat_preprocess.comp once per camera, read by the draw passes.
+struct Splat {
+    vec4 centre;   // xy: centre in window pixels; z: camera-space depth; w: opacity (0 = culled)
+    vec4 axes;     // xy, zw: the two half-axes of the quad in window pixels (eigenvectors * sqrt(eigenvalue) * r)
+    vec4 conic;    // xyz: inverse 2D covariance (a, b, c) in window pixels; w unused
+    vec4 feature;  // rgb: colour from SH; w unused
+};
+
+// alpha of a Gaussian at offset d (window pixels) from its centre, as 3DGS renderCUDA (-1 when skipped)
+float splat_alpha(vec2 d, vec3 conic, float opacity) {
+    float power = -0.5 * (conic.x * d.x * d.x + conic.z * d.y * d.y) - conic.y * d.x * d.y;
+    if (power > 0.0) return -1.0;
+    float alpha = min(MAX_ALPHA, opacity * exp(power));
+    return alpha < MIN_ALPHA ? -1.0 : alpha;
+}
+
