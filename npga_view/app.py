@@ -247,6 +247,9 @@ class ViewerApp:
             self.state.actions.append(("step", 1))
         if pressed(k.p):
             self.state.actions.append(("screenshot", None))
+        if self.rig and (pressed(k.left_bracket) or pressed(k.right_bracket)):
+            step = 1 if pressed(k.right_bracket) else -1
+            self.state.rig_index = (self.state.rig_index + step) % len(self.rig)
 
     # ---------------------------------------------------------------------------------------- actions
     def _run_actions(self) -> None:
@@ -507,8 +510,8 @@ class ViewerApp:
         x, y, w, h = self._viewport()
         w, h = w // 2 * 2, h // 2 * 2
         stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-        self._record_path = f"npga-view-{stamp}.mp4"
-        self._writer = cv2.VideoWriter(self._record_path, cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (w, h))
+        self.record_path = f"npga-view-{stamp}.mp4"
+        self._writer = cv2.VideoWriter(self.record_path, cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (w, h))
         self._record_size = (w, h)
         self.info.recording = True
 
