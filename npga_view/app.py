@@ -17,12 +17,14 @@ import numpy as np
 from npga_core.avatar import Avatar, load_avatar
 from npga_core.engine import PoseEngine
 from npga_core.errors import AvatarFileError
+from npga_core.gaussians import PosedGaussians
 from npga_core.orbit import OrbitCamera
 from npga_core.rig import fit_camera, load_rig
 from npga_core.sequences import ExpressionSequence, load_sequence
 from npga_core.smoothing import jitter, smooth
 
 from . import panels
+from .edit_controller import EditController, highlight
 from .gl import window_context
 from .imgui_glfw import glfw, imgui
 from .panels.files import AVATAR_EXT
@@ -89,6 +91,9 @@ class ViewerApp:
         self.first_pose_shown = False
         self._writer = None
         self.should_close = False
+        self._posed: PosedGaussians | None = None  # a copy of the cloud on screen (before highlighting)
+        self.edits = EditController(self)
+        self.info.keyframes = self.edits.keyframes
 
     # ------------------------------------------------------------------------------------------ files
     def open_avatar(self, path: str) -> bool:
@@ -98,6 +103,14 @@ class ViewerApp:
         except AvatarFileError as e:
             self.state.report(str(e))
             return False
+        self.adopt_avatar(avatar, path)
+        self.edits.start(avatar, avatar.source)
+        self._add_recent(path)
+        glfw.set_window_title(self.window, f"npga-view - {Path(path).name}")
+        return True
+
+    def adopt_avatar(self, avatar: Avatar, path: str) -> None:
+        """Show `avatar` (loaded from `path`): worker, sliders, camera; sequences that no longer fit close."""
         if self.engine is not None:
             self.engine.close()
             self.engine = None
@@ -107,24 +120,70 @@ class ViewerApp:
         k = avatar.expression.n_components if avatar.expression is not None else 0
         self.state.sliders = np.zeros(k, np.float32)
         self.state.n_sliders = min(max(self.state.n_sliders, 1), max(1, min(k, MAX_SLIDERS)))
-        self._requested = self._shown_code = None
+        self._requested = self._shown_code = self._posed = None
         self.first_pose_shown = False
         if avatar.dynamics is not None and avatar.source:
-            self.engine = PoseEngine(avatar.source, len(avatar), avatar.cloud.sh.shape[1], avatar.cloud.latent_dim,
-                                     threads=self.threads)
+            self._start_engine(avatar.source)
         else:
-            self.renderer.set_gaussians(avatar.pose())
+            self._show(avatar.pose())
             self.first_pose_shown = True
-            self._dirty = True
         if self.sequence is not None and self.sequence.dim != avatar.code_dim:
             self.state.report(f"{self.state.sequence_path}: codes have {self.sequence.dim} dims, the avatar expects "
                               f"{avatar.code_dim}; sequence closed")
             self._close_sequence()
-        self.state.camera.fov_y = self.state.camera.fov_y or 20.0
         self.frame_avatar(reset=True)
-        self._add_recent(path)
-        glfw.set_window_title(self.window, f"npga-view - {Path(path).name}")
-        return True
+
+    def _start_engine(self, path: str) -> None:
+        if self.engine is not None:
+            self.engine.close()
+        a = self.avatar
+        self.engine = PoseEngine(path, len(a), a.cloud.sh.shape[1], a.cloud.latent_dim, threads=self.threads)
+        self._requested = None  # ask the new worker for the current code
+        self._frame_of_request = {}
+
+    def _show(self, posed: PosedGaussians) -> None:
+        """Keep `posed` as the cloud on screen and upload it with the edit highlights."""
+        self._posed = posed
+        self.renderer.set_gaussians(highlight(posed, self.edits.session))
+        self._dirty = True
+
+    def reupload(self) -> None:
+        """Upload the cloud on screen again (after a selection, hide or preview change)."""
+        if self._posed is not None:
+            self._show(self._posed)
+
+    def cloud_changed(self, worker_path: str | None) -> None:
+        """The canonical cloud was edited: re-pose it (in the worker, from `worker_path`, if animatable)."""
+        if worker_path is None:
+            self._show(self.avatar.pose())
+        else:
+            self._start_engine(worker_path)
+
+    def shown_means(self) -> np.ndarray:
+        """Centres of the Gaussians on screen (canonical ones until the first pose, or after a deletion)."""
+        if self._posed is not None and self.avatar is not None and len(self._posed) == len(self.avatar):
+            return self._posed.means
+        return np.asarray(self.avatar.cloud.means)
+
+    def shown_code(self) -> np.ndarray | None:
+        return None if self._shown_code is None else self._shown_code.copy()
+
+    def code_for_keyframe(self, source: str, preset: str | None) -> np.ndarray:
+        """The code a new expression keyframe takes: from the sliders, the sequence frame or a preset."""
+        ex = self.avatar.expression if self.avatar is not None else None
+        if ex is None:
+            raise ValueError("this avatar has no expression space")
+        if source == "frame":
+            if self.codes is None:
+                raise ValueError("no sequence frame: open a sequence first")
+            return self.codes[self.info.frame].copy()
+        if source == "preset":
+            if preset in ex.named:
+                return ex.named[preset].copy()
+            if preset in self.state.presets:
+                return np.asarray(self.state.presets[preset], np.float32)
+            raise ValueError(f"no preset named {preset!r}")
+        return self._slider_code()
 
     def open_sequence(self, path: str) -> bool:
         """Load a sequence; refused (with both dimensions) if it does not fit the avatar."""
@@ -179,8 +238,11 @@ class ViewerApp:
         side = min(int(SIDE_PANEL * scale), fw - 16)
         return side, 0, max(1, fw - side), max(1, fh)
 
-    def current_camera(self):
+    def current_camera(self, ignore_keyframes: bool = False):
         x, y, w, h = self._viewport()
+        kf = self.edits
+        if not ignore_keyframes and kf.kf_playing and kf.keyframes.camera:
+            return kf.keyframes.camera_at(kf.kf_time, w, h)
         if self.state.rig_index >= 0 and self.rig:
             names = list(self.rig)
             return fit_camera(self.rig[names[self.state.rig_index % len(names)]], w, h)
@@ -194,7 +256,9 @@ class ViewerApp:
         ww, _ = glfw.get_window_size(self.window)
         scale = fw / max(ww, 1)
         x0 = self._viewport()[0] / scale
-        if io.mouse_pos.x < x0:
+        if io.mouse_pos.x < x0 and not self.edits._drag:
+            return
+        if self.edits.mouse((x0, 0.0), scale):
             return
         cam = self.state.camera
         d = io.mouse_delta
@@ -215,6 +279,21 @@ class ViewerApp:
         cam = self.state.camera
         k = imgui.Key
         pressed = imgui.is_key_pressed
+        acts = self.state.actions
+        if io.key_ctrl:
+            if pressed(k.z):
+                acts.append(("edit_redo" if io.key_shift else "edit_undo", None))
+            if pressed(k.a):
+                acts.append(("select_all", None))
+            if pressed(k.i):
+                acts.append(("select_invert", None))
+            return
+        if pressed(k.delete) or pressed(k.backspace):
+            acts.append(("edit_delete", None))
+        if pressed(k.escape):
+            acts.append(("select_clear", None))
+        if pressed(k.h):
+            acts.append(("edit_show_all", None) if io.key_alt else ("edit_hide", None))
         if pressed(k.left_arrow):
             cam.orbit(-10, 0)
         if pressed(k.right_arrow):
@@ -256,7 +335,8 @@ class ViewerApp:
         actions, self.state.actions = self.state.actions, []
         for name, arg in actions:
             try:
-                self._action(name, arg)
+                if not self.edits.handle(name, arg):
+                    self._action(name, arg)
             except (AvatarFileError, ValueError, OSError) as e:
                 self.state.report(str(e))
 
@@ -379,6 +459,9 @@ class ViewerApp:
             self.info.frame = frame
             self._requested_frame = frame
             return codes[frame]
+        kf = self.edits
+        if kf.kf_playing and kf.keyframes.expression:
+            return kf.keyframes.code_at(kf.kf_time)
         if a.expression is None:
             return a.neutral_code()
         return self._slider_code()
@@ -398,7 +481,10 @@ class ViewerApp:
             self.state.report(eng.last_error)
             eng.last_error = None
         if result is not None:
-            self.renderer.set_gaussians(result.posed)
+            if len(result.posed) == len(self.avatar):
+                p = result.posed
+                self._show(PosedGaussians(p.means.copy(), p.quats.copy(), p.scales.copy(), p.opacities.copy(),
+                                          p.sh.copy(), None if p.latent is None else p.latent.copy()))
             result.release()
             self.info.timings.update({k: v for k, v in result.timings.items() if k in ("F", "G")})
             self._shown_code = result.code
@@ -465,6 +551,8 @@ class ViewerApp:
         self._keys()
         self._draw_ui()
         self._run_actions()
+        self.edits.after_actions()
+        self.edits.tick(dt)
         self._update_pose(dt)
         self.ctx.screen.use()
         fw, fh = glfw.get_framebuffer_size(self.window)
@@ -544,6 +632,7 @@ class ViewerApp:
         if self.engine is not None:
             self.engine.close()
             self.engine = None
+        self.edits.close()
         if self.window is not None:
             imgui.backends.opengl3_shutdown()
             imgui.backends.glfw_shutdown()

@@ -256,3 +256,56 @@ def test_record_viewport_to_mp4(app, avatar_path, tmp_path, monkeypatch):
     n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
     ok, frame = cap.read()
     assert ok and n >= 7 and frame.std() > 5
+
+
+def _key(app, key, ctrl=False):
+    from imgui_bundle import imgui
+
+    io = imgui.get_io()
+    if ctrl:
+        io.add_key_event(imgui.Key.mod_ctrl, True)
+    io.add_key_event(key, True)
+    app.step()
+    io.add_key_event(key, False)
+    if ctrl:
+        io.add_key_event(imgui.Key.mod_ctrl, False)
+    app.step()
+
+
+def test_ctrl_drag_selects_delete_and_undo(app, avatar_path):
+    from imgui_bundle import imgui
+
+    assert app.open_avatar(avatar_path)
+    settle(app)
+    n = len(app.avatar)
+    before = app.read_window(viewport_only=True)
+    io = imgui.get_io()
+    x, _, w, h = app._viewport()  # framebuffer pixels; the Xvfb window has scale 1
+    cx, cy = x + w / 2, h / 2
+    io.add_mouse_pos_event(cx - 60, cy - 60)
+    io.add_key_event(imgui.Key.mod_ctrl, True)
+    app.step()
+    io.add_mouse_button_event(0, True)
+    app.step()
+    for t in np.linspace(0, 1, 5):
+        io.add_mouse_pos_event(cx - 60 + 120 * t, cy - 60 + 120 * t)
+        app.step()
+    io.add_mouse_button_event(0, False)
+    io.add_key_event(imgui.Key.mod_ctrl, False)
+    for _ in range(3):
+        app.step()
+    selected = int(app.edits.session.selection.sum())
+    assert 0 < selected < n
+    settle(app)
+    highlighted = app.read_window(viewport_only=True)
+    centre = highlighted[int(cy) - 20 : int(cy) + 20, int(cx - x) - 20 : int(cx - x) + 20].astype(int)
+    assert (centre[..., 0] - centre[..., 2]).mean() > 40, "selected Gaussians should turn orange"
+    _key(app, imgui.Key.delete)
+    assert len(app.avatar) == n - selected and app.edits.session.dirty
+    settle(app)
+    holed = app.read_window(viewport_only=True)
+    assert np.abs(holed.astype(int) - before.astype(int)).max(axis=2).mean() > 1
+    _key(app, imgui.Key.z, ctrl=True)
+    assert len(app.avatar) == n
+    settle(app)
+    assert app.edits.session.history.names()[0][-1].startswith("Select")

@@ -5,6 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from npga_core.avatar import Avatar
+from npga_core.edits import EditSession
+from npga_core.keyframes import KeyframeTimeline
 from npga_core.sequences import ExpressionSequence
 
 
@@ -25,6 +27,10 @@ class AppInfo:
     rig_names: list[str] = field(default_factory=list)
     last_screenshot: str | None = None
     rects: dict[str, tuple[float, float, float, float]] = field(default_factory=dict)  # widget -> x0, y0, x1, y1
+    edit: EditSession | None = None  # the edit session of the open avatar
+    keyframes: KeyframeTimeline | None = None
+    keyframe_time: float = 0.0
+    keyframe_playing: bool = False
 
 
 def remember(info: AppInfo, name: str) -> None:
