@@ -101,3 +101,12 @@ def test_load_avatar_dispatches_on_content_not_name(tmp_path, small_npga):
     renamed = tmp_path / "avatar.ply"
     renamed.write_bytes(small_npga.read_bytes())
     assert load_avatar(renamed).code_dim == 100
+
+
+def test_saved_files_get_umask_permissions(tmp_path, small_avatar):
+    import os
+
+    save_avatar(small_avatar, tmp_path / "p.npga")
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (tmp_path / "p.npga").stat().st_mode & 0o777 == 0o666 & ~mask
