@@ -117,8 +117,11 @@ class ViewerApp:
         self.avatar = avatar
         self.info.avatar = avatar
         self.state.avatar_path = path if path == "demo" else str(Path(path).resolve())
-        k = avatar.expression.n_components if avatar.expression is not None else 0
+        ex = avatar.expression
+        k = ex.n_components if ex is not None else 0
         self.state.sliders = np.zeros(k, np.float32)
+        if ex is not None and "neutral" in ex.named:  # open at the avatar's neutral face, not the mean code
+            self.state.sliders = ex.to_sliders(ex.named["neutral"]).astype(np.float32)
         self.state.n_sliders = min(max(self.state.n_sliders, 1), max(1, min(k, MAX_SLIDERS)))
         self._requested = self._shown_code = self._posed = None
         self.first_pose_shown = False
