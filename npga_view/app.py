@@ -18,6 +18,7 @@ from npga_core.avatar import Avatar, load_avatar
 from npga_core.engine import PoseEngine
 from npga_core.errors import AvatarFileError
 from npga_core.gaussians import PosedGaussians
+from npga_core.inspect import InspectInfo, Inspector
 from npga_core.orbit import OrbitCamera
 from npga_core.rig import fit_camera, load_rig
 from npga_core.sequences import ExpressionSequence, load_sequence
@@ -30,7 +31,7 @@ from .imgui_glfw import glfw, imgui
 from .panels.files import AVATAR_EXT
 from .panels.info import AppInfo
 from .playback import Playback
-from .renderer import SplatRenderer
+from .renderer import NEAR, SplatRenderer
 from .state import MAX_SLIDERS, ViewerState, config_dir
 
 SIDE_PANEL = 400  # logical pixels
@@ -83,6 +84,8 @@ class ViewerApp:
         self._shown_frame: int | None = None
         self._requested_frame: int | None = None
         self._frame_of_request: dict[int, int | None] = {}  # pending request id -> sequence frame it shows
+        self._colouring = None  # legend of the current Inspect colour mode
+        self._inspect_info_due = False
         self._dirty = True
         self._render_key: tuple | None = None
         self._last_t = time.perf_counter()
@@ -93,6 +96,9 @@ class ViewerApp:
         self.should_close = False
         self._posed: PosedGaussians | None = None  # a copy of the cloud on screen (before highlighting)
         self.edits = EditController(self)
+        self.inspector: Inspector | None = None
+        self._inspect_key: tuple | None = None
+        self._click_pos: tuple[float, float] | None = None
         self.info.keyframes = self.edits.keyframes
 
     # ------------------------------------------------------------------------------------------ files
@@ -124,6 +130,8 @@ class ViewerApp:
             self.state.sliders = ex.to_sliders(ex.named["neutral"]).astype(np.float32)
         self.state.n_sliders = min(max(self.state.n_sliders, 1), max(1, min(k, MAX_SLIDERS)))
         self._requested = self._shown_code = self._posed = None
+        self.inspector = Inspector(avatar)
+        self.state.inspect.picked = None
         self.first_pose_shown = False
         if avatar.dynamics is not None and avatar.source:
             self._start_engine(avatar.source)
@@ -145,10 +153,39 @@ class ViewerApp:
         self._frame_of_request = {}
 
     def _show(self, posed: PosedGaussians) -> None:
-        """Keep `posed` as the cloud on screen and upload it with the edit highlights."""
+        """Keep `posed` as the cloud on screen; upload it as the Inspect settings colour it, with the edit
+        highlights on top."""
         self._posed = posed
-        self.renderer.set_gaussians(highlight(posed, self.edits.session))
+        settings, session = self.state.inspect, self.edits.session
+        selection = session.selection if session is not None and len(session) == len(posed) else None
+        self._inspect_key = (settings.key(), self._inspect_camera_key())
+        frame = None
+        if self.inspector is not None and len(posed) == len(self.avatar):
+            try:
+                frame = self.inspector.frame(settings, posed, self._shown_code, self.current_camera(), selection)
+            except ValueError as e:
+                self.info.inspect = self.info.inspect or InspectInfo()
+                self.info.inspect.error = str(e)
+        if frame is None:
+            self.renderer.set_gaussians(highlight(posed, session))
+            self.renderer.clear_lines()
+            self._colouring = None
+        else:
+            frame.posed = highlight(frame.posed, session)
+            self.renderer.show(frame)
+            self._colouring = frame.colouring
         self._dirty = True
+        self._inspect_info_due = True
+
+    def _inspect_camera_key(self) -> tuple | None:
+        if self.inspector is None or not Inspector.camera_dependent(self.state.inspect):
+            return None
+        return (self.current_camera().world_to_camera.tobytes(),)
+
+    def _refresh_inspect(self) -> None:
+        """Rebuild the frame when the Inspect settings (or, for depth colouring, the camera) changed."""
+        if self._posed is not None and (self.state.inspect.key(), self._inspect_camera_key()) != self._inspect_key:
+            self._show(self._posed)
 
     def reupload(self) -> None:
         """Upload the cloud on screen again (after a selection, hide or preview change)."""
@@ -157,6 +194,9 @@ class ViewerApp:
 
     def cloud_changed(self, worker_path: str | None) -> None:
         """The canonical cloud was edited: re-pose it (in the worker, from `worker_path`, if animatable)."""
+        self.inspector = Inspector(self.avatar)
+        if self.state.inspect.picked is not None and self.state.inspect.picked >= len(self.avatar):
+            self.state.inspect.picked = None
         if worker_path is None:
             self._show(self.avatar.pose())
         else:
@@ -263,6 +303,14 @@ class ViewerApp:
             return
         if self.edits.mouse((x0, 0.0), scale):
             return
+        if self.state.inspect.pick_on_click:
+            if imgui.is_mouse_clicked(0):
+                self._click_pos = (io.mouse_pos.x, io.mouse_pos.y)
+            elif imgui.is_mouse_released(0) and self._click_pos is not None:
+                cx, cy = self._click_pos
+                self._click_pos = None
+                if abs(io.mouse_pos.x - cx) + abs(io.mouse_pos.y - cy) < 4:
+                    self.pick((cx - x0) * scale, cy * scale)
         cam = self.state.camera
         d = io.mouse_delta
         if (d.x or d.y) and self.state.rig_index < 0:
@@ -392,6 +440,9 @@ class ViewerApp:
             st.save_session(arg or "session.json")
         elif name == "load_session":
             self.load_session(arg or "session.json")
+        elif name == "inspect_focus" and self._posed is not None and 0 <= int(arg) < len(self._posed):
+            st.camera.target = [float(v) for v in self._posed.means[int(arg)]]
+            st.rig_index = -1
         elif name == "load_rig" and arg:
             self.rig = load_rig(arg)
             st.rig_path = str(arg)
@@ -504,6 +555,13 @@ class ViewerApp:
             self.info.skipped = self.playback.skipped
 
     # --------------------------------------------------------------------------------------- drawing
+    def pick(self, x: float, y: float) -> int | None:
+        """Pick the Gaussian at view pixel (x, y) (top-left origin) for the inspector."""
+        idx = self.renderer.pick(self.current_camera(), x, y)
+        self.state.inspect.picked = idx
+        self._inspect_info_due = True
+        return idx
+
     def _draw_splats(self) -> None:
         cam = self.current_camera()
         key = (cam.world_to_camera.tobytes(), cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, self.state.mode)
@@ -514,6 +572,14 @@ class ViewerApp:
             t = self.renderer.last_timings
             self.info.timings.update({k: t[k] for k in ("sort", "upload", "preprocess", "draw") if k in t})
             self.info.gaussians_drawn = int(t.get("visible", 0))
+            self._inspect_info_due = True
+        if self._inspect_info_due and self.inspector is not None and self._posed is not None \
+                and len(self._posed) == len(self.avatar):
+            self._inspect_info_due = False
+            err = self.info.inspect.error if self.info.inspect is not None else None
+            self.info.inspect = self.inspector.info(self.state.inspect, self._posed, self._shown_code,
+                                                    self._colouring, cam, self.renderer.drawn_mask(), NEAR)
+            self.info.inspect.error = self.info.inspect.error or err
         x, y, w, h = self._viewport()
         bg = self.state.background if self.state.mode == "rgb" else (0.0, 0.0, 0.0)
         self.renderer.present(self.ctx.screen, bg, flip_y=True, viewport=(x, y, w, h))
@@ -557,6 +623,7 @@ class ViewerApp:
         self.edits.after_actions()
         self.edits.tick(dt)
         self._update_pose(dt)
+        self._refresh_inspect()
         self.ctx.screen.use()
         fw, fh = glfw.get_framebuffer_size(self.window)
         self.ctx.viewport = (0, 0, fw, fh)

@@ -25,6 +25,18 @@ every pixel with alpha >= 1/255 does; this touches only alphas within [1/255, ~1
 
 Camera-only changes re-sort, re-run the pre-pass and redraw; the Gaussian attributes are uploaded only by
 `set_gaussians`.
+
+Inspection (see npga_core/inspect.py for the colour modes, which only replace the uploaded SH):
+
+- `style`: "splats" (the above), "points" (opaque discs of `point_px` radius) or "ellipsoids" (the 1-sigma
+  ellipse of the projected covariance, opaque and shaded); the two geometry styles skip Gaussians with opacity
+  below `style_min_opacity`. The "splats" output is unchanged by this.
+- `drawn_count` / `drawn_mask()`: Gaussians the pre-pass keeps (in front of the near plane, opacity >= 1/255, a
+  non-degenerate covariance, quad overlapping the viewport), counted with an atomic counter in the pre-pass.
+- `pick(camera, x, y)` / `render_ids(camera)`: an id pass over the same sorted quads into an R32UI target,
+  without blending, so a pixel keeps the front-most Gaussian whose alpha there reaches a threshold.
+- `set_lines(positions, edges, colours)`: segments (kNN edges) drawn over the splats in "rgb" mode
+  (`npga_view/lines.py`).
 """
 
 from __future__ import annotations
@@ -32,19 +44,26 @@ from __future__ import annotations
 import re
 import time
 from pathlib import Path
+from typing import TYPE_CHECKING
 
 import moderngl
 import numpy as np
 
 from npga_core.cameras import Camera
 from npga_core.gaussians import PosedGaussians, sh_degree_from_count
+from npga_view.lines import LinePass
 from npga_view.sorting import sort_back_to_front, view_depths
+
+if TYPE_CHECKING:
+    from npga_core.inspect import InspectFrame
 
 SHADER_DIR = Path(__file__).resolve().parents[1] / "shaders"
 NEAR = 0.01
 _GROUP = 128
 _INCLUDE = re.compile(r'^#include\s+"([^"]+)"\s*$', re.MULTILINE)
 MODES = ("rgb", "depth", "alpha")
+STYLES = ("splats", "points", "ellipsoids")
+PICK_THRESHOLD = 0.2  # alpha a Gaussian must reach at a pixel to be picked there
 
 
 def load_shader(name: str, defines: dict[str, object] | None = None) -> str:
@@ -82,6 +101,15 @@ class SplatRenderer:
         self._splat_prog = ctx.program(vertex_shader=load_shader("splat.vert"),
                                        fragment_shader=load_shader("splat.frag"))
         self._splat_vao = ctx.vertex_array(self._splat_prog, [])
+        self._id_prog = ctx.program(vertex_shader=load_shader("splat.vert"),
+                                    fragment_shader=load_shader("splat_id.frag"))
+        self._id_vao = ctx.vertex_array(self._id_prog, [])
+        self._id_target: tuple[moderngl.Texture, moderngl.Framebuffer] | None = None
+        self._lines: LinePass | None = None
+        #: draw style: "splats", "points" or "ellipsoids" (see the module docstring)
+        self.style = "splats"
+        self.point_px = 2.0
+        self.style_min_opacity = 0.05
         self._latent_progs: dict[int, tuple[moderngl.Program, moderngl.VertexArray]] = {}
         self._composite_prog = ctx.program(vertex_shader=load_shader("fullscreen.vert"),
                                            fragment_shader=load_shader("composite.frag"))
@@ -129,7 +157,10 @@ class SplatRenderer:
             fbo.release()
             for t in textures:
                 t.release()
-        self._fbo = self._colour_tex = self._latent_fbo = None
+        if self._id_target is not None:
+            for obj in reversed(self._id_target):
+                obj.release()
+        self._fbo = self._colour_tex = self._latent_fbo = self._id_target = None
 
     def _buffer(self, name: str, data: np.ndarray | None = None, size: int = 0) -> moderngl.Buffer:
         """(Re)allocate the named buffer when it is too small, then write the C-contiguous `data` if given."""
@@ -158,7 +189,11 @@ class SplatRenderer:
             vao.release()
             prog.release()
         self._latent_progs.clear()
-        for obj in (self._splat_vao, self._splat_prog, self._composite_vao, self._composite_prog, self._preprocess):
+        if self._lines is not None:
+            self._lines.release()
+            self._lines = None
+        for obj in (self._splat_vao, self._splat_prog, self._id_vao, self._id_prog, self._composite_vao,
+                    self._composite_prog, self._preprocess):
             obj.release()
 
     # --- data ----------------------------------------------------------------------------------
@@ -192,6 +227,7 @@ class SplatRenderer:
         self._buffer("sh", sh)
         self._buffer("splats", size=n * 64)
         self._buffer("order", size=n * 4)
+        self._buffer("counter", size=4)
         if posed.latent is not None:
             latent = np.ascontiguousarray(posed.latent, dtype=np.float32).reshape(n, -1)
             self._latent_dim = latent.shape[1]
@@ -234,6 +270,8 @@ class SplatRenderer:
         self._buffers["geometry"].bind_to_storage_buffer(0)
         self._buffers["sh"].bind_to_storage_buffer(1)
         self._buffers["splats"].bind_to_storage_buffer(2)
+        self._buffers["counter"].write(np.zeros(1, np.uint32))
+        self._buffers["counter"].bind_to_storage_buffer(5)
         prog.run(group_x=(self._count + _GROUP - 1) // _GROUP)
         self.ctx.memory_barrier()
         if self.sync_timings:
@@ -275,15 +313,25 @@ class SplatRenderer:
         if clear is not None:
             framebuffer.clear(*clear, viewport=viewport)
         if self._count and self._visible:
-            self._splat_prog["u_viewport"].value = (float(camera.width), float(camera.height))
+            self._set_style(self._splat_prog, camera)
             self._splat_prog["u_mode"].value = 1 if mode == "depth" else 0
             self._buffers["splats"].bind_to_storage_buffer(2)
             self._buffers["order"].bind_to_storage_buffer(3)
             self._splat_vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._visible)
+        if mode == "rgb" and self._lines is not None and self._lines.edge_count:
+            self._lines.draw(camera, flip_y, NEAR)
         if self.sync_timings:
             self.ctx.finish()
         self.last_timings["draw"] = (time.perf_counter() - t0) * 1e3
         self.last_timings["visible"] = float(self._visible if self._count else 0)
+
+    def _set_style(self, prog: moderngl.Program, camera: Camera) -> None:
+        if self.style not in STYLES:
+            raise ValueError(f"unknown style {self.style!r}; choose from {', '.join(STYLES)}")
+        prog["u_viewport"].value = (float(camera.width), float(camera.height))
+        prog["u_style"].value = STYLES.index(self.style)
+        prog["u_point_px"].value = float(self.point_px)
+        prog["u_min_opacity"].value = float(self.style_min_opacity)
 
     def _read(self, fbo: moderngl.Framebuffer, attachment: int, width: int, height: int) -> np.ndarray:
         data = fbo.read(viewport=(0, 0, width, height), components=4, dtype="f4", attachment=attachment)
@@ -364,6 +412,97 @@ class SplatRenderer:
                 out[..., lo:lo + n] = self._read(fbo, k, w, h)[..., :n]
         self.last_timings["draw"] = (time.perf_counter() - t0) * 1e3
         return out
+
+    # --- inspection ----------------------------------------------------------------------------
+    @property
+    def drawn_count(self) -> int:
+        """Gaussians kept by the last pre-pass (drawn by the last `draw`/`render` if `style` is "splats")."""
+        if not self._count or self._prepared is None:
+            return 0
+        self._activate()
+        return int(np.frombuffer(self._buffers["counter"].read(size=4), np.uint32)[0])
+
+    def drawn_mask(self) -> np.ndarray:
+        """(N,) bool: which Gaussians the last pre-pass kept (reads the projected splats back)."""
+        if not self._count or self._prepared is None:
+            return np.zeros(self._count, bool)
+        self._activate()
+        data = self._buffers["splats"].read(size=self._count * 64)
+        return np.frombuffer(data, np.float32).reshape(self._count, 16)[:, 3] > 0.0
+
+    def _ids_into(self, camera: Camera, threshold: float, scissor: tuple[int, int, int, int] | None) -> None:
+        w, h = camera.width, camera.height
+        if self._id_target is None or self._id_target[0].size != (w, h):
+            if self._id_target is not None:
+                for obj in reversed(self._id_target):
+                    obj.release()
+            tex = self.ctx.texture((w, h), 1, dtype="u4")
+            self._id_target = (tex, self.ctx.framebuffer([tex]))
+        fbo = self._id_target[1]
+        fbo.use()
+        self.ctx.viewport = (0, 0, w, h)
+        self.ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        fbo.clear(0.0, 0.0, 0.0, 0.0)
+        if not self._count:
+            return
+        self._prepare(camera, False)
+        if not self._visible:
+            return
+        prog = self._id_prog
+        self._set_style(prog, camera)
+        prog["u_threshold"].value = float(threshold)
+        self._buffers["splats"].bind_to_storage_buffer(2)
+        self._buffers["order"].bind_to_storage_buffer(3)
+        fbo.scissor = scissor
+        try:
+            self._id_vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._visible)
+        finally:
+            fbo.scissor = None
+
+    def render_ids(self, camera: Camera, threshold: float = PICK_THRESHOLD) -> np.ndarray:
+        """(H, W) int64: per pixel the front-most Gaussian (by centre depth) whose alpha there, in the current
+        `style`, is at least `threshold`; -1 where there is none. Rows top to bottom."""
+        self._activate()
+        self._ids_into(camera, threshold, None)
+        data = self._id_target[1].read(viewport=(0, 0, camera.width, camera.height), components=1, dtype="u4")
+        return np.frombuffer(data, np.uint32).reshape(camera.height, camera.width).astype(np.int64) - 1
+
+    def pick(self, camera: Camera, x: float, y: float, threshold: float = PICK_THRESHOLD) -> int | None:
+        """The Gaussian at pixel (x, y) (OpenCV: x right, y down, from the image's top-left corner) as
+        `render_ids` defines it, or None; only that pixel is rasterised."""
+        px, py = int(np.floor(x)), int(np.floor(y))
+        if not (0 <= px < camera.width and 0 <= py < camera.height):
+            return None
+        self._activate()
+        self._ids_into(camera, threshold, (px, py, 1, 1))
+        data = self._id_target[1].read(viewport=(px, py, 1, 1), components=1, dtype="u4")
+        value = int(np.frombuffer(data, np.uint32)[0])
+        return value - 1 if value else None
+
+    def show(self, frame: InspectFrame) -> None:
+        """Upload an inspection frame (`npga_core.inspect.Inspector.frame`): its Gaussians, style and lines."""
+        self.set_gaussians(frame.posed)
+        self.style, self.point_px = frame.style, frame.point_px
+        if frame.lines is None:
+            self.clear_lines()
+        else:
+            self.set_lines(frame.lines.positions, frame.lines.edges, frame.lines.colours)
+
+    def set_lines(self, positions: np.ndarray, edges: np.ndarray, colours: np.ndarray) -> None:
+        """Segments between rows of `positions` (M, 3), edges (E, 2), colours (E, 3|4), drawn over the splats by
+        `draw` in "rgb" mode until `clear_lines`."""
+        self._activate()
+        if self._lines is None:
+            self._lines = LinePass(self.ctx, load_shader)
+        self._lines.set(positions, edges, colours)
+
+    def clear_lines(self) -> None:
+        if self._lines is not None:
+            self._lines.clear()
+
+    @property
+    def line_count(self) -> int:
+        return 0 if self._lines is None else self._lines.edge_count
 
     def present(self, framebuffer: moderngl.Framebuffer, background=(0.0, 0.0, 0.0), flip_y: bool = True,
                 viewport: tuple[int, int, int, int] | None = None) -> None:

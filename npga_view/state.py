@@ -14,6 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from npga_core.atomic import atomic_write
+from npga_core.inspect import InspectSettings
 from npga_core.orbit import OrbitCamera
 
 MAX_SLIDERS = 50
@@ -56,6 +57,7 @@ class ViewerState:
     n_sliders: int = 10  # how many are shown (at most MAX_SLIDERS)
     follow_sequence: bool = True  # the code comes from the sequence frame (else from the sliders)
     timeline: Timeline = field(default_factory=Timeline)
+    inspect: InspectSettings = field(default_factory=InspectSettings)  # colour mode, style, kNN, filters, pick
     rig_path: str | None = None
     rig_index: int = -1  # -1: orbit camera
     errors: list[str] = field(default_factory=list)

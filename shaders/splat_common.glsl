@@ -21,3 +21,23 @@ float splat_alpha(vec2 d, vec3 conic, float opacity) {
     return alpha < MIN_ALPHA ? -1.0 : alpha;
 }
 
+
+// Draw styles (uniform u_style of the draw passes): the 3DGS splat; points: opaque discs of a fixed radius in
+// pixels; ellipsoids: the 1-sigma ellipse of the projected covariance, opaque, shaded like a lit ellipsoid
+// seen along the view direction.
+const int STYLE_SPLATS = 0;
+const int STYLE_POINTS = 1;
+const int STYLE_ELLIPSOIDS = 2;
+
+// alpha of a fragment at offset d in a style (-1 when outside), and a shading factor for its colour
+float style_alpha(vec2 d, vec3 conic, float opacity, int style, float point_px, out float shade) {
+    shade = 1.0;
+    if (style == STYLE_POINTS) return dot(d, d) <= point_px * point_px ? 1.0 : -1.0;
+    if (style == STYLE_ELLIPSOIDS) {
+        float q = conic.x * d.x * d.x + 2.0 * conic.y * d.x * d.y + conic.z * d.y * d.y;
+        if (q > 1.0) return -1.0;
+        shade = 0.3 + 0.7 * sqrt(1.0 - q);
+        return 1.0;
+    }
+    return splat_alpha(d, conic, opacity);
+}

@@ -8,6 +8,7 @@ layout(local_size_x = 128) in;
 layout(std430, binding = 0) readonly buffer GeometryBuffer { vec4 geometry[]; };  // (mean, opacity), quat wxyz, (scale, 0)
 layout(std430, binding = 1) readonly buffer SHBuffer { float sh[]; };            // N x K x 3, coefficient-major
 layout(std430, binding = 2) writeonly buffer SplatBuffer { Splat splats[]; };
+layout(std430, binding = 5) buffer CounterBuffer { uint drawn_count; };  // Gaussians not culled (zeroed per run)
 
 uniform mat4 u_view;       // world -> OpenCV camera
 uniform mat4 u_proj;       // OpenCV camera -> clip (Camera.opengl_projection)
@@ -127,4 +128,5 @@ void main() {
     splats[i].axes = vec4(ax1, ax2);
     splats[i].conic = vec4(c / det, -b / det, a / det, 0.0);
     splats[i].feature = vec4(sh_colour(i, mean), 0.0);
+    atomicAdd(drawn_count, 1u);
 }

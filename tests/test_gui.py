@@ -308,4 +308,24 @@ def test_ctrl_drag_selects_delete_and_undo(app, avatar_path):
     _key(app, imgui.Key.z, ctrl=True)
     assert len(app.avatar) == n
     settle(app)
-    assert app.edits.session.history.names()[0][-1].startswith("Select")
+    assert app.edits.session.history.names()[0][-1].lower().startswith(("select", "rect"))
+
+
+def test_inspect_mode_and_pick_in_the_window(app, avatar_path):
+    assert app.open_avatar(avatar_path)
+    settle(app)
+    rgb = app.read_window(viewport_only=True)
+    app.state.inspect.mode = "features"
+    settle(app)
+    feat = app.read_window(viewport_only=True)
+    assert np.abs(feat.astype(int) - rgb.astype(int)).max(axis=2).mean() > 10
+    assert app.info.inspect is not None and app.info.inspect.colouring is not None
+    x, _, w, h = app._viewport()
+    idx = app.pick(w / 2, h / 2)
+    assert idx is not None and 0 <= idx < len(app.avatar)
+    settle(app)
+    rec = app.info.inspect.record
+    assert rec is not None and app.info.inspect.counts.total == len(app.avatar)
+    app.state.actions.append(("inspect_focus", idx))
+    app.step()
+    np.testing.assert_allclose(app.state.camera.target, app._posed.means[idx], atol=1e-6)

@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 from npga_core.avatar import Avatar
 from npga_core.edits import EditSession
+from npga_core.inspect import InspectInfo
 from npga_core.keyframes import KeyframeTimeline
 from npga_core.sequences import ExpressionSequence
 
@@ -31,6 +32,7 @@ class AppInfo:
     keyframes: KeyframeTimeline | None = None
     keyframe_time: float = 0.0
     keyframe_playing: bool = False
+    inspect: InspectInfo | None = None  # legend, counts, histogram, picked record (Inspect panel)
 
 
 def remember(info: AppInfo, name: str) -> None:

@@ -36,7 +36,7 @@ def draw(state: ViewerState, info: AppInfo) -> None:
     if imgui.button("Load rig"):
         state.actions.append(("load_rig", _ui["rig"].strip()))
     idx = RENDER_MODES.index(state.mode) if state.mode in RENDER_MODES else 0
-    changed, idx = imgui.combo("Mode", idx, list(RENDER_MODES))
+    changed, idx = imgui.combo("Pass", idx, list(RENDER_MODES))
     if changed:
         state.mode = RENDER_MODES[idx]
     remember(info, "mode")

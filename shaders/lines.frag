@@ -1,0 +1,7 @@
+#version 430
+// Premultiplied line colour, blended "over" the splat image.
+in vec4 v_colour;
+layout(location = 0) out vec4 frag_colour;
+void main() {
+    frag_colour = vec4(v_colour.rgb * v_colour.a, v_colour.a);
+}
