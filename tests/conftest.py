@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import json
+import os
 from collections.abc import Callable
 from pathlib import Path
 
@@ -10,6 +11,21 @@ import pytest
 
 from npga_core.checkpoint import ALIGN, MAGIC, save_avatar
 from npga_core.synthetic import make_synthetic_avatar
+
+
+@pytest.fixture(scope="module")
+def ctx():
+    """A headless OpenGL 4.3 context (EGL, else OSMesa). Skipped where there is none, except under CI."""
+    from npga_view.gl import GLUnavailableError, create_headless_context
+
+    try:
+        context = create_headless_context()
+    except GLUnavailableError as exc:
+        if os.environ.get("CI"):
+            raise
+        pytest.skip(f"no OpenGL 4.3 context: {exc}")
+    yield context
+    context.release()
 
 
 @pytest.fixture(scope="session")

@@ -111,18 +111,6 @@ def test_pack_rgba8_byte_order() -> None:
     assert pack_rgba8(np.array([[0.0, 0.0, 1.0]]))[0] == 0xFFFF0000  # alpha 1 added
 
 
-@pytest.fixture(scope="module")
-def ctx():
-    from npga_view.gl import GLUnavailableError, create_headless_context
-
-    try:
-        context = create_headless_context()
-    except GLUnavailableError as exc:
-        pytest.skip(f"no OpenGL 4.3 context: {exc}")
-    yield context
-    context.release()
-
-
 @pytest.fixture
 def renderer(ctx):
     from npga_view.renderer import SplatRenderer

@@ -18,18 +18,6 @@ from reference_rasterizer import project  # noqa: E402
 W, H = 64, 80
 
 
-@pytest.fixture(scope="module")
-def ctx():
-    from npga_view.gl import GLUnavailableError, create_headless_context
-
-    try:
-        context = create_headless_context()
-    except GLUnavailableError as exc:
-        pytest.skip(f"no OpenGL 4.3 context: {exc}")
-    yield context
-    context.release()
-
-
 @pytest.fixture
 def renderer(ctx):
     from npga_view.renderer import SplatRenderer

@@ -20,18 +20,6 @@ W, H = 128, 160
 MIN_PSNR = 40.0
 
 
-@pytest.fixture(scope="module")
-def ctx():
-    from npga_view.gl import GLUnavailableError, create_headless_context
-
-    try:
-        context = create_headless_context()
-    except GLUnavailableError as exc:
-        pytest.skip(f"no OpenGL 4.3 context: {exc}")
-    yield context
-    context.release()
-
-
 @pytest.fixture
 def renderer(ctx):
     from npga_view.renderer import SplatRenderer
