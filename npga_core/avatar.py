@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import hashlib
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -31,8 +32,10 @@ class Avatar:
     provenance: dict = field(default_factory=dict)
     units: str = "m"
     source: str | None = None  # path it was loaded from, if any
+    version: int = field(default=0, init=False, repr=False)  # incremented by every `invalidate_caches`
     _first_layer: dict[str, torch.Tensor] = field(default_factory=dict, init=False, repr=False)
     _canonical: dict | None = field(default=None, init=False, repr=False)
+    _content_key: str | None = field(default=None, init=False, repr=False)
 
     @property
     def code_dim(self) -> int:
@@ -57,9 +60,27 @@ class Avatar:
         return z
 
     def invalidate_caches(self) -> None:
-        """Drop cached per-Gaussian terms (call after editing the cloud or the networks)."""
+        """Drop cached per-Gaussian terms (call after editing the cloud or the networks); bumps `version`."""
         self._first_layer.clear()
         self._canonical = None
+        self._content_key = None
+        self.version += 1
+
+    def content_key(self) -> str:
+        """Hex hash of everything posing depends on: cloud arrays, network weights, rotation op (cached per
+        `version`). Derived caches (preview model, baked sequences) are keyed by it."""
+        if self._content_key is None:
+            h = hashlib.blake2b(digest_size=20)
+            arrays = sorted(self.cloud.arrays().items())
+            if self.dynamics is not None:
+                h.update(self.dynamics.rotation_op.encode())
+                arrays += [(k, t.detach().cpu().numpy()) for k, t in sorted(self.dynamics.state_dict().items())]
+            for name, arr in arrays:
+                a = np.ascontiguousarray(arr)
+                h.update(f"{name}{a.dtype.str}{a.shape}".encode())
+                h.update(a.reshape(-1).view(np.uint8))
+            self._content_key = h.hexdigest()
+        return self._content_key
 
     def _tensors(self) -> dict:
         if self._canonical is None:

@@ -526,9 +526,10 @@ class ViewerApp:
         if eng is None:
             return
         if code is not None and (self._requested is None or not np.array_equal(code, self._requested)):
-            req = eng.request(code)
-            self._requested = code.copy()
             following = self.sequence is not None and self.state.follow_sequence
+            # sliders: a fast preview first, then the exact pose; playback: exact poses only
+            req = eng.request(code, mode="exact" if following else "auto")
+            self._requested = code.copy()
             self._frame_of_request[req] = self._requested_frame if following else None
         result = eng.poll()
         if eng.last_error:
@@ -542,6 +543,10 @@ class ViewerApp:
             result.release()
             self.info.timings.update({k: v for k, v in result.timings.items() if k in ("F", "G")})
             self._shown_code = result.code
+            self.info.preview = bool(result.preview)
+            if result.preview:  # the exact pose of this request follows: keep its frame bookkeeping
+                result = None
+        if result is not None:
             frame = self._frame_of_request.get(result.request_id)
             self._frame_of_request = {k: v for k, v in self._frame_of_request.items() if k > result.request_id}
             if frame is not None and self.playback is not None:

@@ -13,6 +13,7 @@ from npga_core.errors import AvatarFileError
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "info": ("npga_view.cli_info", "print a summary of an avatar file"),
     "render": ("npga_view.cli_render", "render an avatar headless to PNG or MP4"),
+    "bench": ("npga_view.cli_bench", "measure the dynamics (exact, preview, playback) on this machine"),
     "export": ("npga_view.cli_export", "export the avatar posed at one expression as a 3DGS .ply"),
 }
 

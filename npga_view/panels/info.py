@@ -20,6 +20,7 @@ class AppInfo:
     timings: dict[str, float] = field(default_factory=dict)  # ms per stage
     gaussians_drawn: int = 0
     posing: bool = False  # a dynamics request is pending
+    preview: bool = False  # the cloud on screen is the engine's fast approximation (exact pose pending)
     achieved_fps: float = 0.0
     skipped: int = 0
     jitter_raw: float = 0.0

@@ -29,6 +29,8 @@ def _body(info: AppInfo) -> None:
     total = len(a) if a is not None else 0
     imgui.text(f"Gaussians: {total:,} total, {info.gaussians_drawn:,} in front of the camera")
     imgui.text(f"UI: {info.fps:5.1f} fps" + ("   posing..." if info.posing else ""))
+    if info.preview:
+        imgui.text_colored(imgui.ImVec4(1.0, 0.8, 0.3, 1.0), "preview (refining to the exact pose)")
     for key, label in STAGES:
         if key in info.timings:
             imgui.text(f"{label:>12}: {info.timings[key]:8.1f} ms")

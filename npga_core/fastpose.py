@@ -1,0 +1,477 @@
+"""`FastPoser`: the exact dynamics at the matrix-multiply limit, with persistent buffers.
+
+Per frame only the code changes, so the per-Gaussian part of every network's first layer is computed once
+(`ConditionedMLP.precompute`, shared with `Avatar`'s cache) and a code costs one (hidden,) vector. Then F and
+G run chunk by chunk over the same rows; each chunk's offsets are applied (`ATTRIBUTE_OPS`, the same operation
+order as `apply_offsets` + `to_posed_gaussians`) while the chunk is still in cache and written straight into the
+caller's output arrays (e.g. a shared-memory slot). All chunk buffers are allocated once; a frame allocates
+nothing of size N.
+
+Offsets of all networks are handled as one row per Gaussian (`OffsetLayout`): F's columns, then G's. The
+preview model and the bake cache store and combine offsets in that layout.
+"""
+
+from __future__ import annotations
+
+import copy
+import threading
+import time
+from collections.abc import Callable
+from concurrent.futures import ThreadPoolExecutor
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from .avatar import Avatar
+from .dynamics import ATTRIBUTE_OPS, ConditionedMLP, cloud_tensors, quat_multiply
+
+#: Offset blocks gathered into attribute-major rows before they are applied.
+SMALL_BLOCKS = ("F.position", "G.position", "G.rotation", "G.scale", "G.opacity")
+
+
+@dataclass(frozen=True)
+class OffsetLayout:
+    """Column blocks of the combined offset row: F's outputs first, then G's."""
+
+    nets: tuple[tuple[str, int, int], ...]  # (network key, first column, width)
+    blocks: dict[str, tuple[int, int]]  # "F.position", "G.sh", ... -> (first column, width)
+
+    @property
+    def width(self) -> int:
+        return sum(w for _, _, w in self.nets)
+
+    @staticmethod
+    def of(networks: dict[str, ConditionedMLP]) -> OffsetLayout:
+        nets, blocks, col = [], {}, 0
+        for key, net in networks.items():
+            nets.append((key, col, net.config.out_dim))
+            for name, width in net.config.outputs:
+                blocks[f"{key}.{name}"] = (col, width)
+                col += width
+        return OffsetLayout(tuple(nets), blocks)
+
+    def block(self, rows: torch.Tensor, key: str) -> torch.Tensor | None:
+        """The columns of block `key` ("G.scale") of an offset chunk, or None if absent."""
+        if key not in self.blocks:
+            return None
+        c, w = self.blocks[key]
+        return rows[:, c : c + w]
+
+
+def resolve_device(name: str | None) -> torch.device:
+    """"cpu" (default), "cuda", "mps" or "auto" (a GPU when torch sees one); ValueError if unavailable."""
+    name = (name or "cpu").lower()
+    if name == "auto":
+        if torch.cuda.is_available():
+            return torch.device("cuda")
+        mps = getattr(torch.backends, "mps", None)
+        return torch.device("mps" if mps is not None and mps.is_available() else "cpu")
+    if name.startswith("cuda") and not torch.cuda.is_available():
+        raise ValueError("--device cuda: torch sees no CUDA GPU")
+    if name == "mps" and not (getattr(torch.backends, "mps", None) and torch.backends.mps.is_available()):
+        raise ValueError("--device mps: torch sees no MPS device")
+    return torch.device(name)
+
+
+@dataclass
+class RowSet:
+    """Per-Gaussian network inputs of a set of rows: the first-layer terms if cached, else (mu, f) to encode."""
+
+    means: torch.Tensor
+    features: torch.Tensor
+    first: dict[str, torch.Tensor] | None = None
+    index: np.ndarray | None = None  # the avatar rows these are (None: all, in order)
+
+    @property
+    def n(self) -> int:
+        return int(self.means.shape[0])
+
+
+@dataclass
+class _Lane:
+    """One thread's scratch: its own copy of every chain's buffers and an offset chunk."""
+
+    index: int
+    chains: dict[str, _Chain]
+    offsets: torch.Tensor
+    busy: dict[str, float] = field(default_factory=dict)  # seconds per stage in the last parallel run
+
+
+class _Chain:
+    """One network after its per-Gaussian first-layer term, with per-chunk activation buffers allocated once."""
+
+    def __init__(self, net: ConditionedMLP, chunk: int, device: torch.device):
+        cfg = net.config
+        if cfg.skips:
+            raise ValueError("skip layers need the generic path (ConditionedMLP.evaluate)")
+        self.net = net
+        gw = cfg.mu_encoded_dim + cfg.feature_dim
+        self.first_weight = net.layers[0].weight.detach()[:, :gw].t().contiguous()
+        self.weights = [layer.weight.detach().t().contiguous() for layer in net.layers]
+        self.biases = [layer.bias.detach() for layer in net.layers]
+        self.hidden = [torch.empty(chunk, o, device=device) for o, _ in cfg.layer_shapes()[:-1]]
+        self.out = torch.empty(chunk, cfg.out_dim, device=device)
+        self.relu = cfg.activation == "relu"
+        self.act = net._act
+        self.flops_per_row = sum(2 * o * i for o, i in cfg.layer_shapes()[1:])
+
+    def _activate(self, h: torch.Tensor) -> torch.Tensor:
+        if self.relu:
+            return h.clamp_min_(0.0)
+        h.copy_(self.act(h))
+        return h
+
+    def run(self, first_rows: torch.Tensor | None, encoded: torch.Tensor | None, code_term: torch.Tensor,
+            first_bias: torch.Tensor) -> torch.Tensor:
+        """Outputs (m, out) of m rows from their cached first-layer term, or from their encoded inputs.
+
+        `code_term` is the code's part of layer 0; `first_bias` is layer 0's bias plus `code_term`.
+        """
+        source = first_rows if first_rows is not None else encoded
+        assert source is not None
+        m = source.shape[0]
+        depth = len(self.weights)
+        h = self.out[:m] if depth == 1 else self.hidden[0][:m]
+        if first_rows is not None:
+            torch.add(first_rows, code_term, out=h)
+        else:
+            torch.addmm(first_bias, source, self.first_weight, out=h)
+        if depth == 1:
+            return h
+        h = self._activate(h)
+        for i in range(1, depth):
+            dest = self.out[:m] if i == depth - 1 else self.hidden[i][:m]
+            torch.addmm(self.biases[i], h, self.weights[i], out=dest)
+            h = dest if i == depth - 1 else self._activate(dest)
+        return h
+
+
+class FastPoser:
+    """Exact posed clouds (and offsets) of an avatar at any code, fast; see the module docstring.
+
+    `first_layer`: "cache" keeps every Gaussian's first-layer term (N x hidden floats per network, shared with
+    `Avatar`'s cache); "recompute" encodes each chunk's (mu, f) again, a GEMM of width mu_enc + F that costs
+    about (mu_enc + F) / code_dim of layer 0 and nothing of memory; "auto" caches while the terms of all
+    networks fit `cache_mb`. `device` may be a GPU ("cuda", "mps"); results always land in CPU arrays.
+    Networks with skip layers are not supported (none of the paper's have them); see `supported`.
+
+    `threads` lanes each take the next chunk and run it with single-threaded operations (torch's thread count
+    is 1 while a pose runs): no barrier per operation, which with torch's own threads costs 10x or more as
+    soon as a core is busy with something else (the renderer, another process).
+    """
+
+    def __init__(self, avatar: Avatar, chunk: int = 1024, device: str | torch.device | None = None,
+                 first_layer: str = "auto", cache_mb: float = 256.0, threads: int = 1):
+        dynamics = avatar.dynamics
+        if dynamics is None or not self.supported(avatar):
+            raise ValueError("the fast path needs dynamics without skip layers")
+        self.avatar = avatar
+        self.version = avatar.version  # the avatar's edit version these buffers were built from
+        self.device = device if isinstance(device, torch.device) else resolve_device(device)
+        self.chunk = int(chunk)
+        self.n = len(avatar)
+        nets = dynamics.networks()
+        self.layout = OffsetLayout.of(nets)
+        self.rotation_op = dynamics.rotation_op
+        if self.device.type == "cpu":
+            self.nets = nets
+            self.canonical = avatar._tensors()
+        else:
+            self.nets = {k: copy.deepcopy(n).to(self.device).eval() for k, n in nets.items()}
+            self.canonical = {k: None if v is None else v.to(self.device)
+                              for k, v in cloud_tensors(avatar.cloud).items()}
+        if first_layer == "auto":
+            need = self.n * sum(n.config.hidden for n in nets.values()) * 4 / 2**20
+            first_layer = "cache" if need <= cache_mb else "recompute"
+        if first_layer not in ("cache", "recompute"):
+            raise ValueError(f"first_layer must be 'auto', 'cache' or 'recompute', got {first_layer!r}")
+        self.first_layer = first_layer
+        self.rows = RowSet(self.canonical["means"], self.canonical["features"], self._first_terms())
+        self.threads = max(1, int(threads)) if self.device.type == "cpu" else 1
+        self._lanes = [_Lane(i, {k: _Chain(n, self.chunk, self.device) for k, n in self.nets.items()},
+                             torch.empty(self.chunk, self.layout.width, device=self.device))
+                       for i in range(self.threads)]
+        self._pool = ThreadPoolExecutor(self.threads - 1, "fastpose") if self.threads > 1 else None
+        self._enc_key = {key: _encoding_key(net) for key, net in self.nets.items()}
+        chains = self._lanes[0].chains.values()
+        self.flops_per_gaussian = sum(c.flops_per_row for c in chains)
+        if first_layer == "recompute":
+            self.flops_per_gaussian += sum(2 * c.first_weight.numel() for c in chains)
+        self._soa = _attribute_major(self.canonical)
+        small = [(k, self.layout.blocks[k]) for k in SMALL_BLOCKS if k in self.layout.blocks]
+        self._small: dict[str, tuple[int, int]] = {}
+        cols, o = [], 0
+        for key, (c, w) in small:
+            self._small[key] = (o, w)
+            cols += range(c, c + w)
+            o += w
+        contiguous = cols == list(range(cols[0], cols[0] + len(cols))) if cols else False
+        self._small_cols: slice | torch.Tensor = slice(cols[0], cols[0] + len(cols)) if contiguous else \
+            torch.tensor(cols, dtype=torch.int64, device=self.device)
+
+    def _first_terms(self) -> dict[str, torch.Tensor] | None:
+        if self.first_layer != "cache":
+            return None
+        c = self.canonical
+        if self.device.type != "cpu":
+            return {k: n.precompute(c["means"], c["features"]) for k, n in self.nets.items()}
+        cache = self.avatar._first_layer  # share Avatar's cache: one copy of N x hidden per network
+        for key, net in self.nets.items():
+            if key not in cache:
+                cache[key] = net.precompute(c["means"], c["features"])
+        return {key: cache[key] for key in self.nets}
+
+    @staticmethod
+    def supported(avatar: Avatar) -> bool:
+        """True when the avatar's networks fit this path (dynamics without skip layers)."""
+        return avatar.dynamics is not None and not any(n.config.skips for n in avatar.dynamics.networks().values())
+
+    @property
+    def cache_bytes(self) -> int:
+        """Bytes held by the first-layer cache (0 when recomputed per chunk)."""
+        return 0 if self.rows.first is None else sum(t.numel() * 4 for t in self.rows.first.values())
+
+    # -- offsets ------------------------------------------------------------------------------------------
+    @torch.no_grad()
+    def code_terms(self, z: np.ndarray) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
+        """Per network: the code's part of layer 0 and layer 0's bias plus it."""
+        if self.avatar.version != self.version:
+            raise RuntimeError("the avatar was edited after this FastPoser was built (invalidate_caches); "
+                               "build a new one")
+        zt = torch.from_numpy(self.avatar.check_code(z)).to(self.device)
+        terms = {}
+        for key, net in self.nets.items():
+            t = net.code_term(zt)
+            terms[key] = (t, net.layers[0].bias.detach() + t)
+        return terms
+
+    def _chunk_offsets(self, lane: _Lane, rows: RowSet, terms: dict, s: int, e: int,
+                       cancel: Callable[[], bool] | None = None) -> torch.Tensor | None:
+        """Combined offsets (e - s, width) of rows s:e of `rows`, in the lane's chunk buffer (None when `cancel()`
+        turned true between two networks)."""
+        out_rows = lane.offsets[: e - s]
+        encoded: dict[tuple, torch.Tensor] = {}
+        for i, (key, col, width) in enumerate(self.layout.nets):
+            if i and cancel is not None and cancel():
+                return None
+            t0 = time.perf_counter()
+            net = self.nets[key]
+            first = enc = None
+            if rows.first is not None:
+                first = rows.first[key][s:e]
+            else:  # networks with the same input normalisation share one encoding per chunk
+                ident = self._enc_key[key]
+                if ident not in encoded:
+                    encoded[ident] = net.encode_gaussian(rows.means[s:e], rows.features[s:e])
+                enc = encoded[ident]
+            out = lane.chains[key].run(first, enc, *terms[key])
+            out_rows[:, col : col + width].copy_(out)
+            lane.busy[key] = lane.busy.get(key, 0.0) + time.perf_counter() - t0
+        return out_rows
+
+    def _parallel(self, tasks: list[int], body: Callable[[_Lane, int], bool | None],
+                  cancel: Callable[[], bool] | None = None, timings: dict[str, float] | None = None) -> bool:
+        """Run `body(lane, task)` for every task on all lanes (each lane pulls the next task); False if
+        `cancel()` turned true before some task or a body returned False. Per-stage busy times, divided by the
+        lanes, go to `timings`."""
+        pending = iter(tasks)
+        lock = threading.Lock()
+        stop = [False]
+
+        def work(lane: _Lane) -> None:
+            torch.set_grad_enabled(False)
+            while True:
+                with lock:
+                    task = None if stop[0] else next(pending, None)
+                if task is None:
+                    return
+                if (cancel is not None and cancel()) or body(lane, task) is False:
+                    stop[0] = True
+                    return
+
+        for lane in self._lanes:
+            lane.busy.clear()
+        saved = torch.get_num_threads()
+        if saved != 1:  # lanes are the parallelism: each operation runs on one thread (see the class docstring)
+            torch.set_num_threads(1)
+        try:
+            futures = [self._pool.submit(work, lane) for lane in self._lanes[1:]] if self._pool else []
+            work(self._lanes[0])
+            for f in futures:
+                f.result()
+        finally:
+            if saved != 1:
+                torch.set_num_threads(saved)
+        if timings is not None:
+            for lane in self._lanes:
+                for k, v in lane.busy.items():
+                    timings[k] = timings.get(k, 0.0) + v * 1e3 / len(self._lanes)
+        return not stop[0]
+
+    def _starts(self, n: int) -> list[int]:
+        return list(range(0, n, self._chunk_for(n)))
+
+    def _chunk_for(self, n: int) -> int:
+        """Rows per task: the chunk size, smaller for small row sets so that every lane gets work."""
+        return max(1, min(self.chunk, -(-n // self.threads)))
+
+    def subset(self, index: np.ndarray) -> RowSet:
+        """The rows `index` with their first-layer terms cached, for repeated `offsets(..., rows=)` calls."""
+        idx = torch.from_numpy(np.asarray(index, np.int64)).to(self.device)
+        mu, f = self.rows.means.index_select(0, idx), self.rows.features.index_select(0, idx)
+        return RowSet(mu, f, {k: n.precompute(mu, f) for k, n in self.nets.items()}, np.asarray(index, np.int64))
+
+    @torch.no_grad()
+    def offsets(self, z: np.ndarray, out: torch.Tensor | None = None, rows: RowSet | None = None,
+                timings: dict[str, float] | None = None,
+                cancel: Callable[[], bool] | None = None) -> torch.Tensor | None:
+        """Combined offsets (N, or the rows of a `subset`, width) at code z, on the CPU (None if cancelled)."""
+        rows = self.rows if rows is None else rows
+        if out is None:
+            out = torch.empty(rows.n, self.layout.width)
+        terms = self.code_terms(z)
+        step = self._chunk_for(rows.n)
+
+        def body(lane: _Lane, s: int) -> bool:
+            e = min(rows.n, s + step)
+            chunk = self._chunk_offsets(lane, rows, terms, s, e, cancel)
+            if chunk is not None:
+                out[s:e].copy_(chunk)
+            return chunk is not None
+
+        return out if self._parallel(self._starts(rows.n), body, cancel, timings) else None
+
+    # -- posing --------------------------------------------------------------------------------------------
+    @torch.no_grad()
+    def pose_into(self, z: np.ndarray, dest: dict[str, np.ndarray], offsets_out: torch.Tensor | None = None,
+                  cancel: Callable[[], bool] | None = None, timings: dict[str, float] | None = None) -> bool:
+        """Write the exact posed cloud at z into `dest` (float32 arrays shaped as `PosedGaussians`).
+
+        `offsets_out` (N, width), if given, receives the combined offsets too. Returns False if `cancel()`
+        became true (checked before each chunk and between the networks; `dest` is then partly written).
+        """
+        terms = self.code_terms(z)
+        out = {k: torch.from_numpy(v) for k, v in dest.items() if v is not None}
+        step = self._chunk_for(self.n)
+
+        def body(lane: _Lane, s: int) -> bool:
+            e = min(self.n, s + step)
+            rows = self._chunk_offsets(lane, self.rows, terms, s, e, cancel)
+            if rows is None:
+                return False
+            if offsets_out is not None:
+                offsets_out[s:e].copy_(rows)
+            t0 = time.perf_counter()
+            self.apply_rows(rows, s, e, out)
+            lane.busy["apply"] = lane.busy.get("apply", 0.0) + time.perf_counter() - t0
+            return True
+
+        return self._parallel(self._starts(self.n), body, cancel, timings)
+
+    @torch.no_grad()
+    def apply_into(self, offsets: torch.Tensor, dest: dict[str, np.ndarray], chunk: int = 8192) -> None:
+        """Posed cloud from precomputed combined offsets (N, width) on the CPU, written into `dest`."""
+        out = {k: torch.from_numpy(v) for k, v in dest.items() if v is not None}
+
+        def body(lane: _Lane, s: int) -> None:
+            e = min(self.n, s + chunk)
+            self.apply_rows(offsets[s:e].to(self.device), s, e, out)
+
+        self._parallel(list(range(0, self.n, chunk)), body)
+
+    def apply_rows(self, rows: torch.Tensor, s: int, e: int, out: dict[str, torch.Tensor]) -> None:
+        """Apply combined offsets of rows s:e to the canonical cloud and write activated values into `out`.
+
+        The same operations as `apply_offsets` followed by `to_posed_gaussians`; the small blocks (position,
+        rotation, scale, opacity) are first gathered into attribute-major rows so every operation runs on
+        contiguous vectors.
+        """
+        soa, lay = self._soa, self.layout
+        if not self._small:
+            small = None
+        elif isinstance(self._small_cols, slice):
+            small = rows[:, self._small_cols].t().contiguous()
+        else:
+            small = torch.index_select(rows, 1, self._small_cols).t().contiguous()
+
+        def block(name: str) -> torch.Tensor | None:
+            hit = self._small.get(name)
+            return None if hit is None else small[hit[0] : hit[0] + hit[1]]
+
+        d, f = block("G.position"), block("F.position")
+        d = f if d is None else (d if f is None else d + f)
+        means = soa["means"][:, s:e]
+        out["means"][s:e].copy_((means if d is None else ATTRIBUTE_OPS["position"].apply(means, d)).t())
+        q = soa["unit_quats"][:, s:e]
+        if (d := block("G.rotation")) is not None:
+            q = _compose(q, d) if self.rotation_op == "compose" else _unit(q + d)
+        out["quats"][s:e].copy_(_unit(q).t())
+        log_s = soa["log_scales"][:, s:e]
+        if (d := block("G.scale")) is not None:
+            log_s = ATTRIBUTE_OPS["scale"].apply(log_s, d)
+        out["scales"][s:e].copy_(torch.exp(log_s).t())
+        op = soa["opacity_logits"][s:e]
+        if (d := block("G.opacity")) is not None:
+            op = ATTRIBUTE_OPS["opacity"].apply(op, d[0])
+        out["opacities"][s:e].copy_(torch.sigmoid(op))
+        self._add_wide(rows, s, e, "sh", out["sh"], lay.blocks.get("G.sh"))
+        if "latent" in out and soa.get("latent") is not None:
+            self._add_wide(rows, s, e, "latent", out["latent"], lay.blocks.get("G.latent"))
+
+    def _add_wide(self, rows: torch.Tensor, s: int, e: int, name: str, dest: torch.Tensor,
+                  cols: tuple[int, int] | None) -> None:
+        """dest[s:e] = canonical + offset on the leading columns (SH, latent: row-major, no reordering)."""
+        canon = self._soa[name][s:e]
+        target = dest[s:e].view(e - s, -1)
+        if cols is None:
+            target.copy_(canon)
+            return
+        c, w = cols
+        if target.device == canon.device:
+            torch.add(canon[:, :w], rows[:, c : c + w], out=target[:, :w])
+        else:  # a GPU pose writing into CPU arrays
+            target[:, :w].copy_(canon[:, :w] + rows[:, c : c + w])
+        if w < canon.shape[1]:
+            target[:, w:].copy_(canon[:, w:])
+
+
+def _encoding_key(net: ConditionedMLP) -> tuple:
+    """Networks with equal keys encode (mu, f) identically."""
+    c = net.config
+    return (c.pos_freqs, c.feature_dim, tuple(net.input_shift[: 3 + c.feature_dim].tolist()),
+            tuple(net.input_scale[: 3 + c.feature_dim].tolist()))
+
+
+def _unit(q: torch.Tensor) -> torch.Tensor:
+    """Rows (4, m) of quaternions, each column scaled to unit length (as `_normalize`, clamped at 1e-12)."""
+    n2 = q[0] * q[0]
+    for i in range(1, q.shape[0]):
+        n2.addcmul_(q[i], q[i])
+    return q / n2.sqrt_().clamp_min_(1e-12)
+
+
+def _compose(c_unit: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+    """ATTRIBUTE_OPS["rotation"] on attribute-major rows: normalize(normalize(1 + d) * c_unit)."""
+    r = d.clone()
+    r[0] += 1.0
+    return _unit(quat_multiply(_unit(r).t(), c_unit.t()).t())
+
+
+def _attribute_major(canonical: dict[str, torch.Tensor | None]) -> dict[str, torch.Tensor]:
+    """Canonical attributes with the small ones transposed to (width, N), the wide ones flattened (N, width)."""
+    soa = {k: canonical[k].t().contiguous() for k in ("means", "log_scales")}
+    soa["unit_quats"] = _unit(canonical["quats"].t().contiguous())
+    soa["opacity_logits"] = canonical["opacity_logits"].contiguous()
+    soa["sh"] = canonical["sh"].reshape(canonical["sh"].shape[0], -1)
+    if canonical.get("latent") is not None:
+        soa["latent"] = canonical["latent"]
+    return soa
+
+
+def posed_buffers(n: int, sh_coeffs: int, latent_dim: int) -> dict[str, np.ndarray]:
+    """Freshly allocated float32 output arrays for `FastPoser.pose_into`."""
+    shapes = {"means": (n, 3), "quats": (n, 4), "scales": (n, 3), "opacities": (n,), "sh": (n, sh_coeffs, 3)}
+    if latent_dim:
+        shapes["latent"] = (n, latent_dim)
+    return {k: np.empty(s, np.float32) for k, s in shapes.items()}
