@@ -20,22 +20,39 @@ from .xvfb import start_xvfb, stop
 pytestmark = pytest.mark.gui
 
 
+class _Display:
+    """A private Xvfb that is restarted if it has gone away between tests."""
+
+    def __init__(self):
+        self.proc, self.name = start_xvfb()
+
+    def ensure(self) -> str:
+        if self.proc.poll() is not None:
+            self.proc, self.name = start_xvfb()
+        os.environ["DISPLAY"] = self.name
+        return self.name
+
+
 @pytest.fixture(scope="module")
-def display():
+def xserver():
     try:
-        proc, disp = start_xvfb()
+        d = _Display()
     except RuntimeError as e:
         if os.environ.get("CI"):
             raise
         pytest.skip(str(e))
     old = os.environ.get("DISPLAY")
-    os.environ["DISPLAY"] = disp
-    yield disp
+    yield d
     if old is None:
         os.environ.pop("DISPLAY", None)
     else:
         os.environ["DISPLAY"] = old
-    stop(proc)
+    stop(d.proc)
+
+
+@pytest.fixture
+def display(xserver):
+    return xserver.ensure()
 
 
 @pytest.fixture(scope="module")
@@ -49,11 +66,19 @@ def avatar_path(tmp_path_factory):
 
 
 @pytest.fixture
-def app(display, tmp_path, monkeypatch):
+def app(display, xserver, tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
     from npga_view.app import ViewerApp
 
-    a = ViewerApp(1000, 990, vsync=False, threads=1, remember_recent=False)
+    for attempt in range(3):  # an Xvfb connection was once refused under load: retry, restarting it if gone
+        try:
+            a = ViewerApp(1000, 990, vsync=False, threads=1, remember_recent=False)
+            break
+        except RuntimeError:
+            if attempt == 2:
+                raise
+            time.sleep(1.0)
+            xserver.ensure()
     yield a
     a.close()
 
