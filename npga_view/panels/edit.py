@@ -133,7 +133,7 @@ def _tools(state: ViewerState, info: AppInfo, s: EditSession) -> None:
     _, _ui["mode"] = imgui.combo("Mode##select", _ui["mode"], list(COMBINE_MODES))
     tool = TOOLS[_ui["tool"]]
     if tool in ("rect", "lasso", "brush"):
-        imgui.text_disabled("Drag in the view with the left button (hold Alt to orbit).")
+        imgui.text_disabled("Ctrl + left drag in the view selects; plain drags orbit.")
         if tool == "brush":
             _, _ui["brush_radius"] = imgui.slider_float("Radius (px)", _ui["brush_radius"], 2.0, 200.0, "%.0f")
     elif tool == "sphere":
