@@ -25,6 +25,7 @@ from npga_core.sequences import ExpressionSequence, load_sequence
 from npga_core.smoothing import jitter, smooth
 
 from . import panels
+from .bake_control import BakeController
 from .edit_controller import EditController, highlight
 from .gl import window_context
 from .imgui_glfw import glfw, imgui
@@ -41,7 +42,7 @@ class ViewerApp:
     """One window. Use `run()` for the interactive loop or `step()` to drive it frame by frame (tests)."""
 
     def __init__(self, width: int = 1360, height: int = 900, visible: bool = True, vsync: bool = True,
-                 threads: int = 2, remember_recent: bool = True):
+                 threads: int = 2, remember_recent: bool = True, device: str = "cpu"):
         if not glfw.init():
             raise RuntimeError("glfw could not initialise (no display? set DISPLAY or use Xvfb)")
         glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 4)
@@ -68,6 +69,7 @@ class ViewerApp:
         self.state = ViewerState()
         self.info = AppInfo()
         self.threads = threads
+        self.device = device  # where the worker runs the dynamics ("cpu", "cuda", "mps", "auto")
         self.remember_recent = remember_recent
         if remember_recent:
             self.state.load_recent()
@@ -96,6 +98,7 @@ class ViewerApp:
         self.should_close = False
         self._posed: PosedGaussians | None = None  # a copy of the cloud on screen (before highlighting)
         self.edits = EditController(self)
+        self.bakes = BakeController(self)
         self.inspector: Inspector | None = None
         self._inspect_key: tuple | None = None
         self._click_pos: tuple[float, float] | None = None
@@ -148,7 +151,9 @@ class ViewerApp:
         if self.engine is not None:
             self.engine.close()
         a = self.avatar
-        self.engine = PoseEngine(path, len(a), a.cloud.sh.shape[1], a.cloud.latent_dim, threads=self.threads)
+        self.engine = PoseEngine(path, len(a), a.cloud.sh.shape[1], a.cloud.latent_dim, threads=self.threads,
+                                 device=self.device)
+        self.bakes.forget()
         self._requested = None  # ask the new worker for the current code
         self._frame_of_request = {}
 
@@ -431,6 +436,10 @@ class ViewerApp:
             f = (self.info.frame + int(arg)) % len(self.sequence)
             tl.time_s = (f + 0.5) / self.sequence.fps
             st.follow_sequence = True
+        elif name == "bake":
+            self.bakes.start()
+        elif name == "cancel_bake":
+            self.bakes.cancel()
         elif name == "screenshot":
             stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
             self.screenshot(arg or f"npga-view-{stamp}.png")
@@ -527,8 +536,10 @@ class ViewerApp:
             return
         if code is not None and (self._requested is None or not np.array_equal(code, self._requested)):
             following = self.sequence is not None and self.state.follow_sequence
-            # sliders: a fast preview first, then the exact pose; playback: exact poses only
-            req = eng.request(code, mode="exact" if following else "auto")
+            if following and self.bakes.usable():
+                req = eng.request_frame(self._requested_frame)
+            else:  # sliders: a fast preview first, then the exact pose; live playback: exact poses only
+                req = eng.request(code, mode="exact" if following else "auto")
             self._requested = code.copy()
             self._frame_of_request[req] = self._requested_frame if following else None
         result = eng.poll()
@@ -543,8 +554,9 @@ class ViewerApp:
             result.release()
             self.info.timings.update({k: v for k, v in result.timings.items() if k in ("F", "G")})
             self._shown_code = result.code
-            self.info.preview = bool(result.preview)
-            if result.preview:  # the exact pose of this request follows: keep its frame bookkeeping
+            self.info.preview = bool(result.preview) and not result.baked
+            self.info.baked, self.info.interpolated = result.baked, result.baked and result.preview
+            if self.info.preview:  # the exact pose of this request follows: keep its frame bookkeeping
                 result = None
         if result is not None:
             frame = self._frame_of_request.get(result.request_id)
@@ -555,6 +567,8 @@ class ViewerApp:
             self.first_pose_shown = True
             self._dirty = True
         self.info.posing = eng.pending is not None
+        self.info.engine_status = eng.status
+        self.info.bake, self.info.bake_state = self.bakes.status, self.bakes.state()
         if self.playback is not None:
             self.info.achieved_fps = self.playback.achieved_fps()
             self.info.skipped = self.playback.skipped

@@ -3,9 +3,11 @@
 For the demo avatar (or the given ones) and synthetic paper-sized avatars (6-layer 256-wide F and G, 100-D
 codes, SH degree 3) it measures, in one run:
 
-- the machine's fp32 matrix-multiply throughput (`gemm_gflops`, best of a 2048^3 product before and after each
-  avatar's exact timing), so every dynamics figure is also a ratio to this machine's limit;
-- the exact path in process (`FastPoser`): F, G, offset application; GFLOPS and `roofline_ratio`;
+- the machine's fp32 matrix-multiply throughput (`gemm_gflops`: 2048^3 products measured between the rounds
+  of each avatar's exact timing, the best of them), so every dynamics figure is also a ratio to this
+  machine's limit;
+- the exact path in process (`FastPoser`): F, G, offset application; GFLOPS and `roofline_ratio` (best over
+  best) and `roofline_ratio_median` (per round, against the gemm rate measured next to it);
 - the stages of a drawn frame: sort, upload, pre-pass, draw, and the CNN when the avatar has one;
 - the viewer's path through `PoseEngine`: scrub latency (request -> posed arrays ready for upload),
   refinement to the exact pose after the slider stops, live (exact, wall-clock) and baked playback rates,
@@ -478,8 +480,9 @@ def _print(res: dict) -> None:
 
     print(f"\n{res['name']}: {res['gaussians']:,} Gaussians ({res.get('first_layer', '?')} first layer)")
     print(f"  gemm {f('gemm_gflops', ' GFLOPS')}  |  F {f('F_ms', ' ms')}  G {f('G_ms', ' ms')}  apply "
-          f"{f('apply_ms', ' ms')}  ->  F+G {f('dynamics_gflops', ' GFLOPS')} = {f('roofline_ratio', '', '{:.2f}')} (median round {f('roofline_ratio_median', '', '{:.2f}')}) "
-          f"of gemm  (Avatar.pose {f('avatar_pose_ms', ' ms')})")
+          f"{f('apply_ms', ' ms')}  ->  F+G {f('dynamics_gflops', ' GFLOPS')} = {f('roofline_ratio', '', '{:.2f}')} "
+          f"of gemm (median round {f('roofline_ratio_median', '', '{:.2f}')})  "
+          f"(Avatar.pose {f('avatar_pose_ms', ' ms')})")
     print(f"  frame: upload {f('upload_ms', ' ms')}  sort {f('sort_ms', ' ms')}  pre-pass {f('preprocess_ms', ' ms')}"
           f"  draw {f('draw_ms', ' ms')}  CNN {f('cnn_ms', ' ms')}")
     print(f"  scrub: {f('scrub_latency_ms', ' ms')} median, {f('scrub_latency_p90_ms', ' ms')} p90 "

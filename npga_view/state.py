@@ -41,6 +41,9 @@ class Timeline:
     smooth_alpha: float = 0.5  # exponential: weight of the new frame
     euro_min_cutoff: float = 1.0
     euro_beta: float = 0.5
+    baked: bool = False  # play from the bake of the sequence (when one is of these codes), else live
+    bake_budget_mb: float = 1024.0  # memory of a bake; longer sequences store every k-th frame and interpolate
+    bake_cache: bool = True  # keep the bake in a cache file next to the avatar, reused while nothing changed
 
 
 @dataclass

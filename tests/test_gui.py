@@ -172,6 +172,45 @@ def test_load_sequence_through_the_ui_and_play(app, avatar_path, tmp_path):
     assert np.abs(later.astype(int) - first.astype(int)).max() > 8
 
 
+def test_bake_through_the_ui_then_play_from_the_bake(app, tmp_path):
+    """Bake button -> progress -> baked playback; smoothing makes the bake stale; a second bake comes from the
+    cache file next to the avatar."""
+    path = tmp_path / "small.npga"
+    save_avatar(make_synthetic_avatar(3000, seed=3), path)
+    assert app.open_avatar(str(path))
+    ex = app.avatar.expression
+    codes = np.stack([ex.from_sliders(np.array([2.0 * np.sin(i / 2.0), 1.5 * np.cos(i / 3.0)])) for i in range(12)])
+    ExpressionSequence(codes.astype(np.float32), 10.0, "short").save(tmp_path / "short.npzseq")
+    assert app.open_sequence(str(tmp_path / "short.npzseq"))
+    settle(app)
+    assert app.info.bake_state == "none" and not app.bakes.usable()
+    click(app, "bake")
+    assert app.state.timeline.baked
+    assert run_until(app, lambda: app.info.bake_state == "ready", timeout=120), app.info.bake
+    st = app.info.bake
+    assert st.finished and st.done == st.stored == 12 and not st.from_cache
+    assert "bake_progress" in app.info.rects  # the progress bar was drawn
+    assert list(tmp_path.glob("small.npga.bake-*.npgabake")), "the cache file is written next to the avatar"
+    click(app, "play")
+    baked_frames = set()
+    end = time.monotonic() + 6
+    while time.monotonic() < end:
+        app.step()
+        if app.info.baked:
+            baked_frames.add(app._shown_frame)
+    assert len(baked_frames - {None}) >= 3, baked_frames
+    app.state.timeline.smoothing = "exponential"
+    app.step()
+    assert app.info.bake_state == "stale" and not app.bakes.usable()
+    app.state.timeline.smoothing = "none"
+    app.step()  # the layout loses the smoothing's slider: widgets move up
+    click(app, "cancel_bake")
+    assert app.info.bake_state == "none" and not app.state.timeline.baked
+    click(app, "bake")
+    assert run_until(app, lambda: app.info.bake_state == "ready", timeout=60)
+    assert app.info.bake.from_cache
+
+
 def test_screenshot_button_writes_the_window(app, avatar_path, tmp_path, monkeypatch):
     monkeypatch.chdir(tmp_path)
     assert app.open_avatar(avatar_path)

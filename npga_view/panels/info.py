@@ -6,6 +6,7 @@ from dataclasses import dataclass, field
 
 from npga_core.avatar import Avatar
 from npga_core.edits import EditSession
+from npga_core.engine import BakeStatus
 from npga_core.inspect import InspectInfo
 from npga_core.keyframes import KeyframeTimeline
 from npga_core.sequences import ExpressionSequence
@@ -21,6 +22,11 @@ class AppInfo:
     gaussians_drawn: int = 0
     posing: bool = False  # a dynamics request is pending
     preview: bool = False  # the cloud on screen is the engine's fast approximation (exact pose pending)
+    baked: bool = False  # the cloud on screen is a baked frame (8-bit offsets)
+    interpolated: bool = False  # ... interpolated between two stored frames of the bake
+    bake: BakeStatus | None = None  # progress of the sequence's bake
+    bake_state: str = "none"  # BakeController.state()
+    engine_status: dict = field(default_factory=dict)  # the pose worker's report: device, first layer, preview
     achieved_fps: float = 0.0
     skipped: int = 0
     jitter_raw: float = 0.0

@@ -31,6 +31,11 @@ def _body(info: AppInfo) -> None:
     imgui.text(f"UI: {info.fps:5.1f} fps" + ("   posing..." if info.posing else ""))
     if info.preview:
         imgui.text_colored(imgui.ImVec4(1.0, 0.8, 0.3, 1.0), "preview (refining to the exact pose)")
+    elif info.baked:
+        imgui.text("baked frame" + (" (interpolated)" if info.interpolated else ""))
+    es = info.engine_status
+    if es.get("device"):
+        imgui.text(f"dynamics on {es['device']}, first layer {es.get('first_layer', '?')}")
     for key, label in STAGES:
         if key in info.timings:
             imgui.text(f"{label:>12}: {info.timings[key]:8.1f} ms")

@@ -1,4 +1,5 @@
-"""Timeline: play, pause, loop, speed, scrub, step, real-time or every frame, smoothing with jitter readout."""
+"""Timeline: play, pause, loop, speed, scrub, step, real-time or every frame, smoothing with jitter readout,
+and baked playback (bake with progress and memory budget, live or baked)."""
 
 from __future__ import annotations
 
@@ -51,3 +52,56 @@ def draw(state: ViewerState, info: AppInfo) -> None:
         _, tl.euro_min_cutoff = imgui.slider_float("Min cutoff (Hz)", tl.euro_min_cutoff, 0.05, 10.0)
         _, tl.euro_beta = imgui.slider_float("Beta", tl.euro_beta, 0.0, 5.0)
     imgui.text(f"jitter: raw {info.jitter_raw:.4f}, smoothed {info.jitter_smoothed:.4f}")
+    _bake(state, info)
+
+
+def _bake(state: ViewerState, info: AppInfo) -> None:
+    """Live (exact poses as fast as they come) or baked (precomputed, plays at the display rate)."""
+    tl = state.timeline
+    imgui.separator()
+    imgui.text("Playback:")
+    imgui.same_line()
+    if imgui.radio_button("Live", not tl.baked):
+        tl.baked = False
+    remember(info, "live")
+    imgui.same_line()
+    if imgui.radio_button("Baked", tl.baked):
+        tl.baked = True
+    remember(info, "baked")
+    imgui.same_line()
+    if imgui.button("Bake"):
+        state.actions.append(("bake", None))
+    remember(info, "bake")
+    if imgui.is_item_hovered():
+        imgui.set_tooltip("Precompute the dynamics of every frame (of the smoothed codes), then play them at the "
+                          "display rate. Reused from the cache file while the avatar and sequence are unchanged.")
+    st, what = info.bake, info.bake_state
+    if st is not None and what != "none":
+        imgui.same_line()
+        if imgui.button("Cancel##bake" if what == "baking" else "Drop##bake"):
+            state.actions.append(("cancel_bake", None))
+        remember(info, "cancel_bake")
+    imgui.set_next_item_width(160)
+    _, tl.bake_budget_mb = imgui.slider_float("Budget", tl.bake_budget_mb, 64.0, 8192.0, "%.0f MB",
+                                              imgui.SliderFlags_.logarithmic)
+    imgui.same_line()
+    _, tl.bake_cache = imgui.checkbox("Cache file", tl.bake_cache)
+    if st is None or what == "none":
+        imgui.text_disabled("Not baked: playback is live." if tl.baked else "Not baked.")
+        return
+    if what == "error":
+        imgui.text_colored(imgui.ImVec4(1.0, 0.4, 0.4, 1.0), f"bake failed: {st.error}")
+        return
+    label = f"{st.done}/{st.stored} frames"
+    imgui.progress_bar(st.fraction, imgui.ImVec2(-1, 0), label)
+    remember(info, "bake_progress")
+    every = f"1 in {st.stride} stored, the rest interpolated" if st.stride > 1 else "all stored"
+    source = "read from the cache file" if st.from_cache else f"{st.seconds:.1f} s"
+    imgui.text_wrapped(f"{st.frames} frames ({every}), {st.megabytes:.0f} MB, {source}")
+    if what == "stale":
+        imgui.text_colored(imgui.ImVec4(1.0, 0.8, 0.3, 1.0), "Bake is of other codes (sequence or smoothing "
+                           "changed): playback is live until you bake again.")
+    elif what == "baking" and tl.baked:
+        imgui.text_disabled("Frames not baked yet are posed exactly as they come.")
+    if st.error:
+        imgui.text_colored(imgui.ImVec4(1.0, 0.8, 0.3, 1.0), st.error)
