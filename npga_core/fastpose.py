@@ -112,7 +112,6 @@ class _Scratch:
     as before, walked through 5 MB per network at 1024 rows and was about 10 % slower)."""
 
     def __init__(self, chunk: int, width: int, device: torch.device):
-        self.chunk = chunk
         self.flat = [torch.empty(chunk * width, device=device) for _ in range(2)]
 
     def view(self, i: int, m: int, width: int) -> torch.Tensor:
