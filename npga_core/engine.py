@@ -87,7 +87,8 @@ class EngineOptions:
     write_cache: bool = True  # write the caches (reading them is always tried)
     first_layer: str = "auto"  # FastPoser first-layer mode
     cache_mb: float = 256.0  # first-layer cache limit for first_layer="auto"
-    chunk: int = 1024  # rows per chunk on the CPU (GPU: the whole cloud in chunks of 64k)
+    kernel: str = "auto"  # FastPoser kernel: "auto", "onednn" or "aten"
+    chunk: int | None = None  # rows per chunk (None: FastPoser's default for its kernel and device)
 
 
 @dataclass
@@ -195,14 +196,14 @@ class _Worker:
             # collapses when a core is shared with the renderer or another process (design/MEASUREMENTS.md)
             torch.set_num_threads(1)
             device = resolve_device(options.device)
-            chunk = options.chunk if device.type == "cpu" else 65536
-            self.poser = FastPoser(self.avatar, chunk=chunk, device=device, first_layer=options.first_layer,
-                                   cache_mb=options.cache_mb, threads=threads)
+            self.poser = FastPoser(self.avatar, chunk=options.chunk, device=device, first_layer=options.first_layer,
+                                   cache_mb=options.cache_mb, threads=threads, kernel=options.kernel)
             width = self.poser.layout.width
             self.base = torch.empty(self.poser.n, width)  # exact offsets of the last exact pose
             self.scratch = torch.empty(self.poser.n, width)
             self.status["first_layer"] = self.poser.first_layer
             self.status["device"] = str(device)
+            self.status["kernel"] = self.poser.kernel
             self.can_preview = options.preview and device.type == "cpu" and self.avatar.code_dim > 0
         self.status["preview_model"] = "pending" if self.can_preview else "off"
 

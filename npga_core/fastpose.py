@@ -9,6 +9,10 @@ nothing of size N.
 
 Offsets of all networks are handled as one row per Gaussian (`OffsetLayout`): F's columns, then G's. The
 preview model and the bake cache store and combine offsets in that layout.
+
+The hidden layers of ReLU networks run on oneDNN's linear with a fused bias + ReLU epilogue and weights packed
+once into its blocked layout (`kernel="onednn"`, torch's own `mkldnn` operators, the ones torch.compile uses on
+the CPU); without them (another build, a GPU) the chain runs on `torch.mm` with the biases folded (`"aten"`).
 """
 
 from __future__ import annotations
@@ -28,6 +32,26 @@ from .dynamics import ATTRIBUTE_OPS, ConditionedMLP, cloud_tensors, quat_multipl
 
 #: Offset blocks gathered into attribute-major rows before they are applied.
 SMALL_BLOCKS = ("F.position", "G.position", "G.rotation", "G.scale", "G.opacity")
+KERNELS = ("auto", "onednn", "aten")
+_ONEDNN: list[bool] = []  # the result of the one-time check of `onednn_available`
+
+
+def onednn_available() -> bool:
+    """True when torch has oneDNN's packed linear with a fused ReLU (`torch.ops.mkldnn._linear_pointwise`,
+    private to torch but what its compiler emits on CPUs) and it matches a plain product on a small test."""
+    if not _ONEDNN:
+        ok = False
+        try:
+            if torch.backends.mkldnn.is_available():
+                gen = torch.Generator().manual_seed(0)
+                x, w, b = (torch.randn(s, generator=gen) for s in ((37, 64), (48, 64), (48,)))
+                packed = torch.ops.mkldnn._reorder_linear_weight(w, 64)
+                y = torch.ops.mkldnn._linear_pointwise(x, packed, b, "relu", [], "")
+                ok = bool(torch.allclose(y, torch.relu(torch.addmm(b, x, w.t())), rtol=1e-4, atol=1e-4))
+        except (AttributeError, RuntimeError, NotImplementedError):
+            ok = False
+        _ONEDNN.append(ok)
+    return _ONEDNN[0]
 
 
 @dataclass(frozen=True)
@@ -122,7 +146,8 @@ class _Scratch:
 class _Chain:
     """One network after its per-Gaussian first-layer term; activations go through the lane's `_Scratch`."""
 
-    def __init__(self, net: ConditionedMLP, chunk: int, device: torch.device):
+    def __init__(self, net: ConditionedMLP, chunk: int, device: torch.device,
+                 packed: list[torch.Tensor | None] | None = None):
         cfg = net.config
         if cfg.skips:
             raise ValueError("skip layers need the generic path (ConditionedMLP.evaluate)")
@@ -137,7 +162,8 @@ class _Chain:
         self.last_rows = net.layers[-1].weight.detach().contiguous()  # (out, in), for the transposed product
         self.relu = cfg.activation == "relu"
         self.act = net._act
-        self.folded = self._fold() if self.relu and len(self.weights) > 2 else None
+        self.packed = packed  # oneDNN weights of layers 1.. (None for the narrow output), or None: torch.mm
+        self.folded = self._fold() if self.relu and packed is None and len(self.weights) > 2 else None
         self.flops_per_row = sum(2 * o * i for o, i in cfg.layer_shapes()[1:])
 
     def _fold(self) -> list[torch.Tensor]:
@@ -147,6 +173,15 @@ class _Chain:
             shift = torch.addmv(self.biases[i], self.weights[i].t(), shift)
             consts.append(shift.neg() if i < len(self.weights) - 1 else shift)
         return consts
+
+    @staticmethod
+    def pack(net: ConditionedMLP, chunk: int) -> list[torch.Tensor | None]:
+        """oneDNN's blocked copies of the weights of layers 1.. (read-only, shared by all lanes); None for a
+        narrow output layer, which stays a transposed `torch.mm`."""
+        layers = net.layers[1:]
+        return [None if i == len(layers) - 1 and net.config.out_dim <= 8 else
+                torch.ops.mkldnn._reorder_linear_weight(layer.weight.detach().contiguous(), chunk)
+                for i, layer in enumerate(layers)]
 
     @property
     def scratch_width(self) -> int:
@@ -171,6 +206,9 @@ class _Chain:
         the code term too made the rounding error 5x larger, this way it stays within 1.5x of the plain forward.
         The output layer's bias is added while the result is copied into `dest`; a narrow output (F's 3
         columns) is computed transposed, (out, m) = W h^T, which MKL does 4x faster than h W at that width.
+
+        With oneDNN weights (`packed`) each hidden layer is one call that adds the bias and applies the ReLU
+        while the block is still in registers: no folding, the same operation order as the plain forward.
         """
         source = first_rows if first_rows is not None else encoded
         assert source is not None
@@ -188,6 +226,9 @@ class _Chain:
         else:
             torch.addmm(first_bias, source, self.first_weight, out=h)
         h = self._activate(h)
+        if self.packed is not None:
+            self._run_onednn(h, dest)
+            return
         for i in range(1, depth - 1):
             out = scratch.view(i % 2, m, self.widths[i])
             if self.folded is not None:
@@ -207,6 +248,21 @@ class _Chain:
             torch.mm(h, self.weights[-1], out=res)
             torch.add(res, bias, out=dest)
 
+    def _run_onednn(self, h: torch.Tensor, dest: torch.Tensor) -> None:
+        """Layers 1.. of `run` on oneDNN: fused linear + bias + ReLU per hidden layer. Each call returns a new
+        (m, hidden) block; the allocator hands the same memory back every chunk (no page faults per frame)."""
+        linear = torch.ops.mkldnn._linear_pointwise
+        packed, biases = self.packed, self.biases
+        for i in range(1, len(packed)):
+            h = linear(h, packed[i - 1], biases[i], "relu", [], "")
+        if packed[-1] is None:
+            m, width = h.shape[0], self.widths[-1]
+            res = self.out_flat[: width * m].view(width, m)
+            torch.mm(self.last_rows, h.t(), out=res)
+            torch.add(res.t(), biases[-1], out=dest)
+        else:
+            dest.copy_(linear(h, packed[-1], biases[-1], "none", [], ""))
+
 
 class FastPoser:
     """Exact posed clouds (and offsets) of an avatar at any code, fast; see the module docstring.
@@ -217,20 +273,24 @@ class FastPoser:
     networks fit `cache_mb`. `device` may be a GPU ("cuda", "mps"); results always land in CPU arrays.
     Networks with skip layers are not supported (none of the paper's have them); see `supported`.
 
+    `chunk`: rows per chunk (None: the kernel's best, measured). `kernel`: "onednn" runs the hidden layers of
+    ReLU networks on oneDNN's packed linear with a fused bias and ReLU (about 5 % faster here, see
+    docs/PERFORMANCE.md), "aten" on `torch.mm`; "auto" takes oneDNN on the CPU when `onednn_available()`.
+    Networks with another activation always use "aten".
+
     `threads` lanes each take the next chunk and run it with single-threaded operations (torch's thread count
     is 1 while a pose runs): no barrier per operation, which with torch's own threads costs 10x or more as
     soon as a core is busy with something else (the renderer, another process).
     """
 
-    def __init__(self, avatar: Avatar, chunk: int = 1024, device: str | torch.device | None = None,
-                 first_layer: str = "auto", cache_mb: float = 256.0, threads: int = 1):
+    def __init__(self, avatar: Avatar, chunk: int | None = None, device: str | torch.device | None = None,
+                 first_layer: str = "auto", cache_mb: float = 256.0, threads: int = 1, kernel: str = "auto"):
         dynamics = avatar.dynamics
         if dynamics is None or not self.supported(avatar):
             raise ValueError("the fast path needs dynamics without skip layers")
         self.avatar = avatar
         self.version = avatar.version  # the avatar's edit version these buffers were built from
         self.device = device if isinstance(device, torch.device) else resolve_device(device)
-        self.chunk = int(chunk)
         self.n = len(avatar)
         nets = dynamics.networks()
         self.layout = OffsetLayout.of(nets)
@@ -250,9 +310,18 @@ class FastPoser:
         self.first_layer = first_layer
         self.rows = RowSet(self.canonical["means"], self.canonical["features"], self._first_terms())
         self.threads = max(1, int(threads)) if self.device.type == "cpu" else 1
+        if kernel not in KERNELS:
+            raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
+        fused = {k for k, n in self.nets.items() if n.config.activation == "relu" and n.config.depth > 1}
+        self.kernel = self._pick_kernel(kernel) if fused else "aten"  # oneDNN is only used for ReLU networks
+        # rows per chunk: oneDNN measured best at 2048, torch.mm at 1024 (two blocks in a 2 MB L2); GPUs take more
+        default = 65536 if self.device.type != "cpu" else 2048 if self.kernel == "onednn" else 1024
+        self.chunk = int(chunk) if chunk else default
+        packs = {k: _Chain.pack(n, self.chunk) if self.kernel == "onednn" and k in fused else None
+                 for k, n in self.nets.items()}
         self._lanes = []
         for i in range(self.threads):
-            chains = {k: _Chain(n, self.chunk, self.device) for k, n in self.nets.items()}
+            chains = {k: _Chain(n, self.chunk, self.device, packs[k]) for k, n in self.nets.items()}
             width = max(c.scratch_width for c in chains.values())
             self._lanes.append(_Lane(i, chains, torch.empty(self.chunk, self.layout.width, device=self.device),
                                      _Scratch(self.chunk, width, self.device)))
@@ -276,6 +345,12 @@ class FastPoser:
         contiguous = cols == list(range(cols[0], cols[0] + len(cols))) if cols else False
         self._small_cols: slice | torch.Tensor = slice(cols[0], cols[0] + len(cols)) if contiguous else \
             torch.tensor(cols, dtype=torch.int64, device=self.device)
+
+    def _pick_kernel(self, kernel: str) -> str:
+        usable = self.device.type == "cpu" and onednn_available()
+        if kernel == "onednn" and not usable:
+            raise ValueError("kernel 'onednn': this torch build or device has no usable oneDNN linear")
+        return "onednn" if kernel != "aten" and usable else "aten"
 
     def _first_terms(self) -> dict[str, torch.Tensor] | None:
         if self.first_layer != "cache":
@@ -314,10 +389,11 @@ class FastPoser:
         return terms
 
     def _chunk_offsets(self, lane: _Lane, rows: RowSet, terms: dict, s: int, e: int,
-                       cancel: Callable[[], bool] | None = None) -> torch.Tensor | None:
-        """Combined offsets (e - s, width) of rows s:e of `rows`, in the lane's chunk buffer (None when `cancel()`
-        turned true between two networks)."""
-        out_rows = lane.offsets[: e - s]
+                       cancel: Callable[[], bool] | None = None,
+                       into: torch.Tensor | None = None) -> torch.Tensor | None:
+        """Combined offsets (e - s, width) of rows s:e of `rows`, in `into` (on the poser's device) or else the
+        lane's chunk buffer (None when `cancel()` turned true between two networks)."""
+        out_rows = lane.offsets[: e - s] if into is None else into
         encoded: dict[tuple, torch.Tensor] = {}
         for i, (key, col, width) in enumerate(self.layout.nets):
             if i and cancel is not None and cancel():
@@ -399,10 +475,12 @@ class FastPoser:
         terms = self.code_terms(z)
         step = self._chunk_for(rows.n)
 
+        direct = out.device == self.device  # the networks write straight into `out`, else through the lane
+
         def body(lane: _Lane, s: int) -> bool:
             e = min(rows.n, s + step)
-            chunk = self._chunk_offsets(lane, rows, terms, s, e, cancel)
-            if chunk is not None:
+            chunk = self._chunk_offsets(lane, rows, terms, s, e, cancel, out[s:e] if direct else None)
+            if chunk is not None and not direct:
                 out[s:e].copy_(chunk)
             return chunk is not None
 

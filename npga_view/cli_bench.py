@@ -51,6 +51,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--live-seconds", type=float, default=4.0, help="length of the live playback run (default 4)")
     p.add_argument("--bake-frames", type=int, default=50, help="frames of the baked sequence (default 50)")
     p.add_argument("--bake-budget-mb", type=float, default=1024.0, help="bake memory budget (default 1024)")
+    p.add_argument("--kernel", choices=("auto", "onednn", "aten"), default="auto",
+                   help="hidden layers on oneDNN (fused bias + ReLU) or torch.mm (default auto: oneDNN if usable)")
     p.add_argument("--no-render", action="store_true", help="skip OpenGL (no draw timings, no PSNR)")
 
 
@@ -174,7 +176,7 @@ def _exact_in_process(avatar, args, out: dict) -> FastPoser:
 
     from npga_core.fastpose import FastPoser, posed_buffers
 
-    poser = FastPoser(avatar, device=args.device, threads=args.threads)
+    poser = FastPoser(avatar, device=args.device, threads=args.threads, kernel=args.kernel)
     gemm_device = str(poser.device.type)
     dest = posed_buffers(len(avatar), avatar.cloud.sh.shape[1], avatar.cloud.latent_dim)
     z = avatar.expression.sample(np.random.default_rng(0)) if avatar.expression else avatar.neutral_code()
@@ -198,7 +200,7 @@ def _exact_in_process(avatar, args, out: dict) -> FastPoser:
     out["gemm_gflops_rounds"] = gemms
     # per round: dynamics rate over the better of the gemm rates measured right before and after it
     paired = [flop / (r["offsets"] / 1e3) / 1e9 / max(gemms[i], gemms[i + 1]) for i, r in enumerate(runs)]
-    out["first_layer"] = poser.first_layer
+    out["first_layer"], out["kernel"], out["chunk"] = poser.first_layer, poser.kernel, poser.chunk
     out["F_ms"], out["G_ms"], out["apply_ms"], out["exact_pose_ms"] = med["F"], med["G"], med["apply"], med["pose"]
     out["dynamics_ms"], out["dynamics_median_ms"] = best, med["offsets"]
     out["mflop_per_gaussian"] = poser.flops_per_gaussian / 1e6
@@ -288,7 +290,7 @@ def _engine_run(path: str, avatar, codes: np.ndarray, fps: float, renderer: _Ren
     """The viewer's path: scrub latency, refine, live and baked playback, memory."""
     from npga_core.engine import EngineOptions, PoseEngine
 
-    opts = EngineOptions(device=args.device, cache_dir=args.cache_dir)
+    opts = EngineOptions(device=args.device, cache_dir=args.cache_dir, kernel=args.kernel)
     ex = avatar.expression
     n = len(avatar)
     with PoseEngine(path, n, avatar.cloud.sh.shape[1], avatar.cloud.latent_dim, args.threads, opts) as eng:
@@ -478,7 +480,8 @@ def _print(res: dict) -> None:
         v = res.get(key)
         return "-" if v is None or (isinstance(v, float) and np.isnan(v)) else fmt.format(v) + unit
 
-    print(f"\n{res['name']}: {res['gaussians']:,} Gaussians ({res.get('first_layer', '?')} first layer)")
+    print(f"\n{res['name']}: {res['gaussians']:,} Gaussians ({res.get('first_layer', '?')} first layer, "
+          f"{res.get('kernel', '?')} kernel, chunks of {res.get('chunk', '?')})")
     print(f"  gemm {f('gemm_gflops', ' GFLOPS')}  |  F {f('F_ms', ' ms')}  G {f('G_ms', ' ms')}  apply "
           f"{f('apply_ms', ' ms')}  ->  F+G {f('dynamics_gflops', ' GFLOPS')} = {f('roofline_ratio', '', '{:.2f}')} "
           f"of gemm (median round {f('roofline_ratio_median', '', '{:.2f}')})  "

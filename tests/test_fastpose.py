@@ -9,10 +9,12 @@ import pytest
 import torch
 
 from npga_core.dynamics import ConditionedMLP, Dynamics, MLPConfig
-from npga_core.fastpose import FastPoser, posed_buffers
+from npga_core.fastpose import FastPoser, onednn_available, posed_buffers
 from npga_core.synthetic import make_synthetic_avatar
 
 FIELDS = ("means", "quats", "scales", "opacities", "sh", "latent")
+KERNELS = ["aten", pytest.param("onednn", marks=pytest.mark.skipif(not onednn_available(),
+                                                                    reason="torch has no usable oneDNN linear"))]
 
 
 def _reference_rows(avatar, z: np.ndarray) -> torch.Tensor:
@@ -30,10 +32,11 @@ def _assert_posed_close(dest: dict, ref, rtol: float = 1e-4, atol: float = 2e-6)
 
 @pytest.mark.parametrize("first_layer", ["cache", "recompute"])
 @pytest.mark.parametrize("threads", [1, 2])
-def test_exact_path_equals_reference_forward(first_layer, threads):
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_exact_path_equals_reference_forward(first_layer, threads, kernel):
     a = make_synthetic_avatar(900, latent_dim=3, seed=4)
-    poser = FastPoser(a, chunk=256, first_layer=first_layer, threads=threads)
-    assert poser.first_layer == first_layer
+    poser = FastPoser(a, chunk=256, first_layer=first_layer, threads=threads, kernel=kernel)
+    assert (poser.first_layer, poser.kernel) == (first_layer, kernel)
     z = a.expression.sample(np.random.default_rng(1))
     torch.testing.assert_close(poser.offsets(z), _reference_rows(a, z), rtol=1e-4, atol=1e-6)
     dest = posed_buffers(len(a), a.cloud.sh.shape[1], a.cloud.latent_dim)
@@ -46,9 +49,10 @@ def test_exact_path_equals_reference_forward(first_layer, threads):
     {"with_g": False, "feature_dim": 0},
     {"hidden": 32, "depth": 2, "sh_degree": 0},
 ])
-def test_other_layouts_equal_reference(kw):
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_other_layouts_equal_reference(kw, kernel):
     a = make_synthetic_avatar(500, seed=6, **kw)
-    poser = FastPoser(a, chunk=128)
+    poser = FastPoser(a, chunk=128, kernel=kernel)
     z = a.expression.sample(np.random.default_rng(2))
     dest = posed_buffers(len(a), a.cloud.sh.shape[1], a.cloud.latent_dim)
     poser.pose_into(z, dest)
@@ -71,6 +75,7 @@ def test_other_activation_encoding_and_rotation_op():
     z = a.expression.sample(np.random.default_rng(3))
     for mode in ("cache", "recompute"):
         poser = FastPoser(a, chunk=100, first_layer=mode)
+        assert poser.kernel == "aten"  # oneDNN is used for ReLU networks only
         dest = posed_buffers(len(a), a.cloud.sh.shape[1], 0)
         poser.pose_into(z, dest)
         _assert_posed_close(dest, a.pose(z, reference=True))
@@ -138,17 +143,21 @@ def test_cuda_path_equals_reference():
     _assert_posed_close(dest, a.pose(z, reference=True), rtol=1e-3, atol=1e-5)
 
 
-def test_folded_bias_relu_chain_with_large_biases():
-    """ReLU chains carry each hidden layer's bias into the next layer (`_Chain.run`); with biases as large as
-    the activations the result still equals a float64 forward to float32 rounding."""
+@pytest.mark.parametrize("kernel", KERNELS)
+def test_relu_chain_with_large_biases_matches_float64(kernel):
+    """On torch.mm, ReLU chains carry each hidden layer's bias into the next layer (`_Chain.run`); on oneDNN
+    the bias is fused. With biases as large as the activations both equal a float64 forward to float32
+    rounding."""
     a = make_synthetic_avatar(600, seed=12)
     with torch.no_grad():
         for net in a.dynamics.networks().values():
             for layer in net.layers[1:]:
                 layer.bias.normal_(0.0, 0.5)
     a.invalidate_caches()
-    poser = FastPoser(a, chunk=128, threads=2)
-    assert all(c.folded is not None for c in poser._lanes[0].chains.values())
+    poser = FastPoser(a, chunk=128, threads=2, kernel=kernel)
+    chains = poser._lanes[0].chains.values()
+    assert all((c.folded is not None, c.packed is not None) == (kernel == "aten", kernel == "onednn")
+               for c in chains)
     z = a.expression.sample(np.random.default_rng(5))
     t = a._tensors()
     got = poser.offsets(z).double()
@@ -156,3 +165,11 @@ def test_folded_bias_relu_chain_with_large_biases():
     ref = torch.cat([copy.deepcopy(net).double()(mu, f, zz) for net in a.dynamics.networks().values()], 1).detach()
     scale = ref.abs().amax(0).clamp_min(1e-12)
     assert float(((got - ref).abs().amax(0) / scale).max()) < 1e-4
+
+
+def test_kernel_choice():
+    """"auto" takes oneDNN on the CPU when it is usable; other activations and unknown names are handled."""
+    a = make_synthetic_avatar(300, seed=9)
+    assert FastPoser(a, chunk=64).kernel == ("onednn" if onednn_available() else "aten")
+    with pytest.raises(ValueError, match="kernel must be one of"):
+        FastPoser(a, kernel="fast")

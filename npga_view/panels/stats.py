@@ -35,7 +35,7 @@ def _body(info: AppInfo) -> None:
         imgui.text("baked frame" + (" (interpolated)" if info.interpolated else ""))
     es = info.engine_status
     if es.get("device"):
-        imgui.text(f"dynamics on {es['device']}, first layer {es.get('first_layer', '?')}")
+        imgui.text(f"dynamics on {es['device']} ({es.get('kernel', '?')}), first layer {es.get('first_layer', '?')}")
     for key, label in STAGES:
         if key in info.timings:
             imgui.text(f"{label:>12}: {info.timings[key]:8.1f} ms")
