@@ -4,8 +4,8 @@ Per frame only the code changes, so the per-Gaussian part of every network's fir
 (`ConditionedMLP.precompute`, shared with `Avatar`'s cache) and a code costs one (hidden,) vector. Then F and
 G run chunk by chunk over the same rows; each chunk's offsets are applied (`ATTRIBUTE_OPS`, the same operation
 order as `apply_offsets` + `to_posed_gaussians`) while the chunk is still in cache and written straight into the
-caller's output arrays (e.g. a shared-memory slot). All chunk buffers are allocated once; a frame allocates
-nothing of size N.
+caller's output arrays (e.g. a shared-memory slot). Chunk buffers are allocated once (oneDNN's calls return
+chunk-sized blocks that the allocator recycles: no page faults per frame); a frame allocates nothing of size N.
 
 Offsets of all networks are handled as one row per Gaussian (`OffsetLayout`): F's columns, then G's. The
 preview model and the bake cache store and combine offsets in that layout.
