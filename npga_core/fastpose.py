@@ -18,6 +18,7 @@ the CPU); without them (another build, a GPU) the chain runs on `torch.mm` with 
 from __future__ import annotations
 
 import copy
+import platform
 import threading
 import time
 from collections.abc import Callable
@@ -275,7 +276,7 @@ class FastPoser:
 
     `chunk`: rows per chunk (None: the kernel's best, measured). `kernel`: "onednn" runs the hidden layers of
     ReLU networks on oneDNN's packed linear with a fused bias and ReLU (about 5 % faster here, see
-    docs/PERFORMANCE.md), "aten" on `torch.mm`; "auto" takes oneDNN on the CPU when `onednn_available()`.
+    docs/PERFORMANCE.md), "aten" on `torch.mm`; "auto" takes oneDNN on x86-64 CPUs when `onednn_available()`.
     Networks with another activation always use "aten".
 
     `threads` lanes each take the next chunk and run it with single-threaded operations (torch's thread count
@@ -350,7 +351,9 @@ class FastPoser:
         usable = self.device.type == "cpu" and onednn_available()
         if kernel == "onednn" and not usable:
             raise ValueError("kernel 'onednn': this torch build or device has no usable oneDNN linear")
-        return "onednn" if kernel != "aten" and usable else "aten"
+        # "auto" takes it only where it was measured (x86-64); elsewhere on request
+        measured = platform.machine().lower() in ("x86_64", "amd64")
+        return "onednn" if usable and (kernel == "onednn" or (kernel == "auto" and measured)) else "aten"
 
     def _first_terms(self) -> dict[str, torch.Tensor] | None:
         if self.first_layer != "cache":
