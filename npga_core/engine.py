@@ -220,10 +220,11 @@ class _Worker:
             self.want = msg
             self.refine = None
         elif kind == "bake":
-            self._start_bake(*msg[1:])
+            self.status["bake_id"] = msg[1]
+            self._start_bake(*msg[2:])
         elif kind == "cancel_bake":
             self.job = None
-            self._send_status(bake=None)
+            self._send_status(bake=None, bake_id=msg[1])
         return True
 
     def _drain(self, block: bool) -> bool:
@@ -472,6 +473,7 @@ class PoseEngine:
         self.last_error: str | None = None
         self.status: dict = {}
         self.bake_status: BakeStatus | None = None
+        self._bake_id = 0  # number of the newest bake or cancel request
         self.worker_peak_rss_mb = 0.0
         self._proc = ctx.Process(target=_worker, daemon=True, name="npga-pose-worker",
                                  args=(path, self.layout, [s.name for s in self._shms], self._slots, self._req,
@@ -506,10 +508,12 @@ class PoseEngine:
         the avatar is reused when the avatar content, the codes and the parameters are unchanged."""
         codes = np.asarray(codes, np.float32)
         self.bake_status = BakeStatus(len(codes))
-        self._req.put(("bake", codes.copy(), float(budget_mb), bool(cache), int(bits)))
+        self._bake_id += 1
+        self._req.put(("bake", self._bake_id, codes.copy(), float(budget_mb), bool(cache), int(bits)))
 
     def cancel_bake(self) -> None:
-        self._req.put(("cancel_bake",))
+        self._bake_id += 1
+        self._req.put(("cancel_bake", self._bake_id))
         self.bake_status = None
 
     # -- results ---------------------------------------------------------------------------------------
@@ -525,7 +529,9 @@ class PoseEngine:
                 self.ready = True
                 self.status.update(a)
                 bake = a.get("bake", ...)
-                if bake is not ...:
+                # every status carries the worker's bake: take it only once the worker has seen the newest
+                # bake or cancel request (an older status would bring back the previous bake)
+                if bake is not ... and a.get("bake_id", 0) == self._bake_id:
                     self.bake_status = None if bake is None else BakeStatus(**bake)
             elif kind == "error":
                 self.last_error = a

@@ -81,6 +81,8 @@ def _validate(seq: ExpressionSequence, path: Path) -> ExpressionSequence:
         a = np.asarray(a, np.float32).reshape(t, -1) if a.size == t * width else a
         if a.shape != (t, width) or not np.isfinite(a).all():
             raise AvatarFileError(path, f"{key} must be finite with shape ({t}, {width}), got {a.shape}")
+        if key == "scale" and not (a > 0).all():
+            raise AvatarFileError(path, f"scale must be positive (frame {int(np.argmax(~(a[:, 0] > 0)))} is not)")
         setattr(seq, key, a[:, 0] if key == "scale" else a)
     return seq
 

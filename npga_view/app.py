@@ -18,6 +18,7 @@ from npga_core.avatar import Avatar, load_avatar
 from npga_core.engine import PoseEngine
 from npga_core.errors import AvatarFileError
 from npga_core.gaussians import PosedGaussians
+from npga_core.headpose import has_head_pose, head_transform, posed_camera
 from npga_core.inspect import InspectInfo, Inspector
 from npga_core.orbit import OrbitCamera
 from npga_core.rig import fit_camera, load_rig
@@ -287,14 +288,23 @@ class ViewerApp:
         return side, 0, max(1, fw - side), max(1, fh)
 
     def current_camera(self, ignore_keyframes: bool = False):
+        """The splat view's camera: keyframed, a rig camera or the orbit camera, moved by the sequence's head
+        pose (of the frame on screen) while it is followed."""
         x, y, w, h = self._viewport()
         kf = self.edits
+        rig = self.state.rig_index >= 0 and bool(self.rig)
         if not ignore_keyframes and kf.kf_playing and kf.keyframes.camera:
-            return kf.keyframes.camera_at(kf.kf_time, w, h)
-        if self.state.rig_index >= 0 and self.rig:
+            cam = kf.keyframes.camera_at(kf.kf_time, w, h)
+        elif rig:
             names = list(self.rig)
-            return fit_camera(self.rig[names[self.state.rig_index % len(names)]], w, h)
-        return self.state.camera.camera(w, h)
+            cam = fit_camera(self.rig[names[self.state.rig_index % len(names)]], w, h)
+        else:
+            cam = self.state.camera.camera(w, h)
+        seq = self.sequence
+        if seq is not None and self.state.follow_sequence and self.state.timeline.head_pose and has_head_pose(seq):
+            frame = self._shown_frame if self._shown_frame is not None else self.info.frame
+            cam = posed_camera(cam, head_transform(seq, frame, relative=not rig))
+        return cam
 
     def _mouse(self) -> None:
         io = imgui.get_io()
@@ -534,14 +544,20 @@ class ViewerApp:
         eng = self.engine
         if eng is None:
             return
+        following = self.sequence is not None and self.state.follow_sequence
         if code is not None and (self._requested is None or not np.array_equal(code, self._requested)):
-            following = self.sequence is not None and self.state.follow_sequence
             if following and self.bakes.usable():
                 req = eng.request_frame(self._requested_frame)
             else:  # sliders: a fast preview first, then the exact pose; live playback: exact poses only
                 req = eng.request(code, mode="exact" if following else "auto")
             self._requested = code.copy()
             self._frame_of_request[req] = self._requested_frame if following else None
+        elif following and code is not None and self._shown_frame != self._requested_frame \
+                and eng.pending is None and self._shown_code is not None and np.array_equal(code, self._shown_code):
+            # a frame with the code already on screen (a held expression): it is shown as it is, and the head
+            # pose of the new frame applies
+            self._shown_frame = self._requested_frame
+            self.playback.shown(self._shown_frame, time.perf_counter(), self.state.timeline.playing)
         result = eng.poll()
         if eng.last_error:
             self.state.report(eng.last_error)

@@ -76,6 +76,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--expr", type=Path, help="expression code .npy, (D,) or (T, D) with --frame choosing the row")
     p.add_argument("--sequence", type=Path, help="expression sequence (.npzseq/.npz/.npy or a tracking folder)")
     p.add_argument("--frame", type=int, default=None, help="frame of --sequence/--expr for a single image")
+    p.add_argument("--head-pose", choices=("off", "relative", "absolute"), default="off",
+                   help="move the head as the --sequence's tracked pose: relative to its first frame (for the "
+                   "default framing) or as tracked (for a rig --camera); default off")
     p.add_argument("--no-cnn", action="store_true", help="skip the avatar's screen-space CNN refinement")
     p.add_argument("--timeline", type=Path, help="keyframe timeline JSON (expression and camera keys) to render as "
                    "a video (.mp4)")
@@ -144,27 +147,36 @@ def _camera(args, framing_points: np.ndarray) -> Camera:
     return frame_points(framing_points, args.width or DEFAULT_WIDTH, args.height or DEFAULT_HEIGHT)
 
 
-def _codes(args, avatar) -> tuple[np.ndarray | None, float]:
-    """(T, D) codes to render (None: the mean code) and the frame rate."""
+def _codes(args, avatar) -> tuple[np.ndarray | None, float, list[np.ndarray] | None]:
+    """(T, D) codes to render (None: the mean code), the frame rate and, with --head-pose, each frame's head
+    transform (4x4)."""
+    from npga_core.headpose import has_head_pose, head_transform
     from npga_core.sequences import load_sequence
 
     source = args.sequence or args.expr
     if args.sequence is not None and args.expr is not None:
         raise RenderError("give either --expr or --sequence, not both")
+    if args.head_pose != "off" and args.sequence is None:
+        raise RenderError("--head-pose needs --sequence")
     if source is None:
         if args.frame is not None:
             raise RenderError("--frame needs --sequence or --expr")
-        return None, 25.0
+        return None, 25.0, None
     if avatar.code_dim == 0:
         raise RenderError(f"{source}: the avatar is static (no dynamics), it takes no expression codes")
     seq = load_sequence(source)
     seq.check_dim(avatar.code_dim, source)
-    codes = seq.codes
+    codes, frames = seq.codes, range(len(seq))
     if args.frame is not None:
         if not 0 <= args.frame < len(codes):
             raise RenderError(f"--frame {args.frame}: {source} has frames 0..{len(codes) - 1}")
-        codes = codes[args.frame:args.frame + 1]
-    return codes, seq.fps
+        codes, frames = codes[args.frame:args.frame + 1], [args.frame]
+    poses = None
+    if args.head_pose != "off":
+        if not has_head_pose(seq):
+            raise RenderError(f"--head-pose: {source} has no head pose (rotation, translation or scale)")
+        poses = [head_transform(seq, f, relative=args.head_pose == "relative") for f in frames]
+    return codes, seq.fps, poses
 
 
 def _timeline(args, avatar, camera: Camera) -> tuple[list, list[Camera], float]:
@@ -424,6 +436,7 @@ def _progress(done: int, total: int, started: float) -> None:
 
 def _render(args) -> int:
     from npga_core.avatar import load_avatar
+    from npga_core.headpose import posed_camera
     from npga_view.gl import GLUnavailableError, create_headless_context
     from npga_view.renderer import SplatRenderer
 
@@ -443,9 +456,9 @@ def _render(args) -> int:
         raise RenderError(f"--out {out}: folder {out.parent} does not exist")
     background = parse_background(args.background)
     avatar = load_avatar(args.avatar)
-    codes, fps = _codes(args, avatar)
+    codes, fps, poses = _codes(args, avatar)
     camera = _camera(args, avatar.cloud.means)
-    cameras = None
+    cameras = None if poses is None else [posed_camera(camera, t) for t in poses]
     if args.timeline is not None:
         codes, cameras, fps = _timeline(args, avatar, camera)
     try:
@@ -453,7 +466,7 @@ def _render(args) -> int:
     except GLUnavailableError as exc:
         raise RenderError(str(exc)) from None
     renderer = SplatRenderer(ctx, camera.width, camera.height)
-    frames = _Frames(avatar, renderer, camera, args, background)
+    frames = _Frames(avatar, renderer, camera if cameras is None else cameras[0], args, background)
     if suffix != ".mp4":
         image, picture = frames.render(None if codes is None else codes[0])
         if suffix == ".npy":

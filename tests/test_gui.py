@@ -393,3 +393,44 @@ def test_inspect_mode_and_pick_in_the_window(app, avatar_path):
     app.state.actions.append(("inspect_focus", idx))
     app.step()
     np.testing.assert_allclose(app.state.camera.target, app._posed.means[idx], atol=1e-6)
+
+
+def test_sequence_head_pose_moves_the_view(app, tmp_path):
+    """A tracked sequence with head rotation: frame 0 is the unmoved view (relative pose), a later frame turns
+    the head (camera = V T_0^-1 T_t), and the Head pose checkbox turns it off again."""
+    from npga_core.headpose import head_transform
+
+    path = tmp_path / "small.npga"
+    save_avatar(make_synthetic_avatar(3000, seed=3), path)
+    assert app.open_avatar(str(path))
+    code = app.avatar.neutral_code()
+    t = 8
+    rotation = np.zeros((t, 3), np.float32)
+    rotation[:, 1] = np.linspace(0.1, 0.9, t)  # turning about the vertical axis
+    translation = np.zeros((t, 3), np.float32)
+    translation[:, 0] = np.linspace(0.0, 0.05, t)
+    seq = ExpressionSequence(np.repeat(code[None], t, 0), 10.0, "turn", rotation=rotation, translation=translation)
+    seq.save(tmp_path / "turn.npzseq")
+    settle(app)
+    base = app.current_camera().world_to_camera.copy()
+    assert app.open_sequence(str(tmp_path / "turn.npzseq"))
+    settle(app)
+    np.testing.assert_allclose(app.current_camera().world_to_camera, base, atol=1e-9)  # frame 0: identity
+    unmoved = app.read_window(viewport_only=True)
+    app.state.actions.append(("step", 5))
+    assert run_until(app, lambda: app._shown_frame == 5)
+    settle(app)
+    want = base @ head_transform(app.sequence, 5)
+    np.testing.assert_allclose(app.current_camera().world_to_camera, want, atol=1e-9)
+    turned = app.read_window(viewport_only=True)
+    assert (np.abs(turned.astype(int) - unmoved.astype(int)).max(axis=2) > 8).mean() > 0.01
+    click(app, "head_pose")
+    assert not app.state.timeline.head_pose
+    from imgui_bundle import imgui
+
+    imgui.get_io().add_mouse_pos_event(5.0, 5.0)  # away from the checkbox: its tooltip reaches into the view
+    settle(app)
+    np.testing.assert_allclose(app.current_camera().world_to_camera, base, atol=1e-9)
+    back = app.read_window(viewport_only=True)
+    moved = (np.abs(back.astype(int) - unmoved.astype(int)).max(axis=2) > 8).mean()
+    assert moved < 0.002  # the same picture again (the statistics overlay's figures may differ)

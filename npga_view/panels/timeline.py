@@ -1,9 +1,11 @@
 """Timeline: play, pause, loop, speed, scrub, step, real-time or every frame, smoothing with jitter readout,
-and baked playback (bake with progress and memory budget, live or baked)."""
+the tracked head pose on or off, and baked playback (bake with progress and memory budget, live or baked)."""
 
 from __future__ import annotations
 
 from imgui_bundle import imgui
+
+from npga_core.headpose import has_head_pose
 
 from ..state import ViewerState
 from .info import AppInfo, remember
@@ -52,6 +54,17 @@ def draw(state: ViewerState, info: AppInfo) -> None:
         _, tl.euro_min_cutoff = imgui.slider_float("Min cutoff (Hz)", tl.euro_min_cutoff, 0.05, 10.0)
         _, tl.euro_beta = imgui.slider_float("Beta", tl.euro_beta, 0.0, 5.0)
     imgui.text(f"jitter: raw {info.jitter_raw:.4f}, smoothed {info.jitter_smoothed:.4f}")
+    if has_head_pose(seq):
+        _, tl.head_pose = imgui.checkbox("Head pose", tl.head_pose)
+        remember(info, "head_pose")
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("Move the head as tracked (rotation, translation, scale of the sequence).\n"
+                              "Through a rig camera: where the camera saw it. Orbit camera: relative to frame 1.")
+        imgui.same_line()
+        rig = state.rig_index >= 0 and bool(state.rig_path)
+        imgui.text_disabled("as tracked" if rig else "relative to frame 1")
+    else:
+        imgui.text_disabled("no head pose in this sequence")
     _bake(state, info)
 
 
