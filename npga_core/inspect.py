@@ -1,4 +1,8 @@
-"""Looking inside an avatar: per-Gaussian colour modes, colour maps, counts, histograms, clipping, kNN lines.
+"""Looking inside an avatar: per-Gaussian colour modes, counts, histograms, clipping, kNN lines.
+
+The pieces live in small modules: colour maps and colourings in `colouring.py`, per-Gaussian measures, counts,
+ranges, clipping and recolouring in `measures.py`, the expression sensitivity (exact JVPs through F and G) in
+`sensitivity.py`; this module holds the offset values, the settings and the `Inspector` that ties them together.
 
 Every colour mode is a function that returns a `Colouring`: an RGB in [0, 1] per Gaussian, which the viewer
 draws with the unchanged splat renderer by replacing the SH with degree 0 (`rgb_to_sh0`), and what a legend
@@ -36,163 +40,31 @@ same for picking and for kNN lines; "highlight" instead draws the out-of-range G
 from __future__ import annotations
 
 import time
-import warnings
-from dataclasses import astuple, dataclass, field, replace
+from dataclasses import astuple, dataclass
 
 import numpy as np
-import torch
 
 from .avatar import Avatar
 from .cameras import Camera
-from .dynamics import ConditionedMLP, Offsets
-from .gaussians import SH_C0, GaussianCloud, PosedGaussians, rgb_to_sh0
+from .colouring import Colouring, FeaturePCA, pca_colouring, robust_range, scalar_colouring
+from .dynamics import Offsets
+from .gaussians import SH_C0, GaussianCloud, PosedGaussians
 from .graph import edge_lengths, edges_touching, knn_cached, knn_edges, laplacian_terms
+from .measures import (
+    SCALE_MEASURES,
+    Counts,
+    clip_box,
+    clip_plane,
+    count_gaussians,
+    depth_values,
+    histogram,
+    in_range,
+    recolour,
+    scale_values,
+)
+from .sensitivity import expression_direction, position_jvp
 
-# --- colour maps -----------------------------------------------------------------------------------------
-# Polynomial fits, evaluated by Horner's rule in t in [0, 1]: viridis by Matt Zucker (CC0, within ~0.01 of
-# matplotlib's table) and turbo by Anton Mikhailov (Google, Apache-2.0; darker than the turbo table at both
-# ends); coefficients of t^0 .. t^6 / t^5.
-_VIRIDIS = np.array([
-    [0.2777273272234177, 0.005407344544966578, 0.3340998053353061],
-    [0.1050930431085774, 1.404613529898575, 1.384590162594685],
-    [-0.3308618287255563, 0.214847559468213, 0.09509516302823659],
-    [-4.634230498983486, -5.799100973351585, -19.33244095627987],
-    [6.228269936347081, 14.17993336680509, 56.69055260068105],
-    [4.776384997670288, -13.74514537774601, -65.35303263337234],
-    [-5.435455855934631, 4.645852612178535, 26.3124352495832],
-])
-_TURBO = np.array([
-    [0.13572138, 0.09140261, 0.10667330],
-    [4.61539260, 2.19418839, 12.64194608],
-    [-42.66032258, 4.84296658, -60.58204836],
-    [132.13108234, -14.18503333, 110.36276771],
-    [-152.94239396, 4.27729857, -89.90310912],
-    [59.28637943, 2.82956604, 27.34824973],
-])
-# diverging blue - light grey - red (the end and middle colours of K. Moreland's cool-warm map), piecewise linear
-_COOLWARM = np.array([[0.230, 0.299, 0.754], [0.865, 0.865, 0.865], [0.706, 0.016, 0.150]])
-
-#: Colour map names; append "_r" to reverse one.
-COLOUR_MAPS: tuple[str, ...] = ("viridis", "turbo", "coolwarm", "grey")
-NAN_COLOUR = (0.5, 0.5, 0.5)
-
-
-def colour_map(t: np.ndarray, name: str = "viridis") -> np.ndarray:
-    """RGB (..., 3) float32 in [0, 1] of values t (clipped to [0, 1]; NaN gives grey) under a named map."""
-    base = name[:-2] if name.endswith("_r") else name
-    if base not in COLOUR_MAPS:
-        raise ValueError(f"unknown colour map {name!r}; choose from {', '.join(COLOUR_MAPS)} (or NAME_r)")
-    t = np.asarray(t, dtype=np.float64)
-    nan = ~np.isfinite(t)
-    t = np.clip(np.where(nan, 0.0, t), 0.0, 1.0)
-    if name.endswith("_r"):
-        t = 1.0 - t
-    if base in ("viridis", "turbo"):
-        coeffs = _VIRIDIS if base == "viridis" else _TURBO
-        rgb = np.zeros(t.shape + (3,))
-        for c in coeffs[::-1]:
-            rgb = rgb * t[..., None] + c
-    elif base == "coolwarm":
-        rgb = np.stack([np.interp(t, [0.0, 0.5, 1.0], _COOLWARM[:, i]) for i in range(3)], axis=-1)
-    else:
-        rgb = np.repeat(t[..., None], 3, axis=-1)
-    rgb[nan] = NAN_COLOUR
-    return np.clip(rgb, 0.0, 1.0).astype(np.float32)
-
-
-def robust_range(values: np.ndarray, percentiles: tuple[float, float] = (1.0, 99.0),
-                 symmetric: bool = False) -> tuple[float, float]:
-    """(lo, hi) of the finite values at the given percentiles; symmetric: (-m, m) with m the upper percentile of
-    |values|. An empty or constant input gives a range of width 1e-9 or more around it."""
-    v = np.asarray(values, dtype=np.float64).reshape(-1)
-    v = v[np.isfinite(v)]
-    if v.size == 0:
-        return (0.0, 1.0)
-    if symmetric:
-        m = float(np.percentile(np.abs(v), percentiles[1]))
-        lo, hi = -m, m
-    else:
-        lo, hi = (float(x) for x in np.percentile(v, percentiles))
-    if hi - lo < 1e-9:
-        mid = 0.5 * (lo + hi)
-        lo, hi = mid - 5e-10 - 1e-6 * abs(mid), mid + 5e-10 + 1e-6 * abs(mid)
-    return lo, hi
-
-
-@dataclass
-class Colouring:
-    """Per-Gaussian colours of a mode and what its legend shows."""
-
-    rgb: np.ndarray  # (N, 3) float32 in [0, 1]
-    label: str  # what the colour encodes, with units
-    values: np.ndarray | None = None  # (N,) the scalar behind a colour map; None for direct RGB (PCA)
-    lo: float = 0.0  # value at the low end of the colour map
-    hi: float = 1.0
-    cmap: str | None = None  # None: `rgb` is not a colour map of `values`
-    notes: tuple[str, ...] = ()  # extra legend lines
-
-
-def scalar_colouring(values: np.ndarray, label: str, cmap: str = "viridis",
-                     value_range: tuple[float, float] | None = None, symmetric: bool = False) -> Colouring:
-    """Colour a scalar per Gaussian: rgb = cmap((v - lo) / (hi - lo)), range robust unless given."""
-    v = np.asarray(values, dtype=np.float64).reshape(-1)
-    lo, hi = value_range if value_range is not None else robust_range(v, symmetric=symmetric)
-    t = (v - lo) / (hi - lo) if hi != lo else np.full_like(v, 0.5)
-    return Colouring(colour_map(t, cmap), label, v.astype(np.float32), float(lo), float(hi), cmap)
-
-
-# --- PCA colours ------------------------------------------------------------------------------------------
-@dataclass
-class FeaturePCA:
-    """First three principal axes of per-Gaussian vectors and the range of each projection."""
-
-    mean: np.ndarray  # (D,)
-    axes: np.ndarray  # (3, D) orthonormal rows (zero rows when D < 3), largest |entry| of each positive
-    lo: np.ndarray  # (3,) 1st percentile of each projection
-    hi: np.ndarray  # (3,) 99th percentile
-    explained: np.ndarray  # (3,) fraction of the total variance along each axis
-
-    @staticmethod
-    def fit(x: np.ndarray, percentiles: tuple[float, float] = (1.0, 99.0)) -> FeaturePCA:
-        """PCA of x (N, D) by the eigen-decomposition of its covariance."""
-        x = np.asarray(x, dtype=np.float64)
-        if x.ndim != 2 or x.shape[1] == 0 or x.shape[0] < 2:
-            raise ValueError(f"need vectors of shape (N >= 2, D >= 1) for a PCA, got {x.shape}")
-        mean = x.mean(axis=0)
-        cov = np.cov(x - mean, rowvar=False).reshape(x.shape[1], x.shape[1])
-        w, v = np.linalg.eigh(cov)
-        order = np.argsort(w)[::-1][:3]
-        axes = np.zeros((3, x.shape[1]))
-        axes[: len(order)] = v[:, order].T
-        for a in axes:
-            if np.any(a):
-                a *= np.sign(a[np.abs(a).argmax()])
-        explained = np.zeros(3)
-        explained[: len(order)] = np.maximum(w[order], 0.0) / max(float(np.maximum(w, 0).sum()), 1e-30)
-        proj = (x - mean) @ axes.T
-        lo, hi = np.percentile(proj, percentiles, axis=0)
-        hi = np.where(hi - lo < 1e-12, lo + 1.0, hi)
-        return FeaturePCA(mean, axes, lo, hi, explained)
-
-    def project(self, x: np.ndarray) -> np.ndarray:
-        """Coordinates (N, 3) along the three axes."""
-        return (np.asarray(x, dtype=np.float64) - self.mean) @ self.axes.T
-
-    def colours(self, x: np.ndarray) -> np.ndarray:
-        """RGB (N, 3): each coordinate mapped from [lo, hi] to [0, 1] (0.5 for missing axes)."""
-        t = (self.project(x) - self.lo) / (self.hi - self.lo)
-        t[:, ~np.any(self.axes, axis=1)] = 0.5
-        return np.clip(t, 0.0, 1.0).astype(np.float32)
-
-
-def pca_colouring(x: np.ndarray, pca: FeaturePCA, name: str) -> Colouring:
-    """`features` / `latent` mode: RGB = the first three principal components of `name`."""
-    e = pca.explained * 100.0
-    note = f"R, G, B = PC 1, 2, 3 of {name} ({e[0]:.0f} %, {e[1]:.0f} %, {e[2]:.0f} % of the variance)"
-    return Colouring(pca.colours(x), f"PCA of {name}", notes=(note,))
-
-
-# --- modes on offsets -------------------------------------------------------------------------------------
+# --- offsets -------------------------------------------------------------------------------------------------
 OFFSET_SOURCES: tuple[str, ...] = ("sum", "F", "G")
 OFFSET_ATTRIBUTES: tuple[str, ...] = ("position", "rotation", "scale", "opacity", "colour")
 
@@ -247,216 +119,6 @@ def offset_label(attribute: str, source: str) -> str:
 def laplacian_values(x: np.ndarray, nbrs: np.ndarray) -> np.ndarray:
     """The `laplacian` mode's scalar: the paper's R_lap(x)_i on the graph `nbrs` (N,) float32."""
     return laplacian_terms(x, nbrs).astype(np.float32)
-
-
-# --- sensitivity -----------------------------------------------------------------------------------------
-def expression_direction(avatar: Avatar, k: int) -> np.ndarray:
-    """The code change (D,) of one standard deviation along PCA direction k (0-based) of the expression space;
-    without an expression space, the unit vector of code axis k."""
-    d = avatar.code_dim
-    ex = avatar.expression
-    if ex is not None:
-        if not 0 <= k < ex.n_components:
-            raise ValueError(f"direction {k} outside 0..{ex.n_components - 1}")
-        return (ex.std[k] * ex.basis[k]).astype(np.float32)
-    if not 0 <= k < d:
-        raise ValueError(f"direction {k} outside 0..{d - 1}")
-    v = np.zeros(d, np.float32)
-    v[k] = 1.0
-    return v
-
-
-def _activation_jvp(net: ConditionedMLP, pre: torch.Tensor, dpre: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor]:
-    """(act(pre), act'(pre) * dpre) for the network's elementwise activation."""
-    if net.config.activation == "relu":
-        return torch.relu(pre), dpre * (pre > 0)
-    with warnings.catch_warnings():
-        warnings.simplefilter("ignore", DeprecationWarning)  # torch scripts its jvp decompositions once
-        return torch.func.jvp(net._act, (pre,), (dpre,))
-
-
-@torch.no_grad()
-def mlp_jvp(net: ConditionedMLP, first: torch.Tensor, z: torch.Tensor, v: torch.Tensor, cols: slice,
-            gaussian_inputs: tuple[torch.Tensor, torch.Tensor], chunk: int = 4096) -> torch.Tensor:
-    """Forward-mode derivative of output columns `cols` of `net` along the code direction v at code z: (N, width).
-
-    Mirrors `ConditionedMLP.evaluate` (`first` is `precompute`'s per-Gaussian first layer): only the code
-    enters the first layer's tangent, a constant vector; each later layer maps (h, dh) to (W h + b, W dh), each
-    activation multiplies dh by its derivative; skip inputs carry the code's tangent too.
-    """
-    c = net.config
-    gw = c.mu_encoded_dim + c.feature_dim
-    dz = v * net.input_scale[3 + c.feature_dim:]  # tangent of the normalised code
-    dpre0 = net.layers[0].weight[:, gw:] @ dz
-    zt = net.code_term(z)
-    zc = net.encode_code(z) if c.skips else None
-    n = first.shape[0]
-    out = torch.empty(n, cols.stop - cols.start)
-    if c.depth == 1:
-        out[:] = dpre0[cols]
-        return out
-    last = net.layers[-1]
-    for s in range(0, n, chunk):
-        e = min(n, s + chunk)
-        m = e - s
-        pre, dpre = first[s:e] + zt, dpre0.expand(m, -1)
-        for i in range(1, c.depth):
-            h, dh = _activation_jvp(net, pre, dpre)
-            if i in c.skips:
-                mu, f = gaussian_inputs
-                h = torch.cat([h, net.encode_gaussian(mu[s:e], f[s:e]), zc.expand(m, -1)], dim=-1)
-                dh = torch.cat([dh, torch.zeros(m, gw), dz.expand(m, -1)], dim=-1)
-            if i < c.depth - 1:
-                layer = net.layers[i]
-                pre, dpre = torch.addmm(layer.bias, h, layer.weight.t()), dh @ layer.weight.t()
-        out[s:e] = dh @ last.weight[cols].t()
-    return out
-
-
-def position_jvp(avatar: Avatar, code: np.ndarray, direction: np.ndarray) -> np.ndarray:
-    """d mu / d t of every posed centre for z = code + t * direction at t = 0: (N, 3) float32.
-
-    Exact forward-mode derivative of F's and G's position outputs with respect to the code (`mlp_jvp`), on the
-    avatar's cached per-Gaussian first layers; about twice the cost of posing.
-    """
-    if avatar.dynamics is None:
-        raise ValueError("this avatar has no dynamics")
-    z = torch.from_numpy(avatar.check_code(code))
-    v = torch.from_numpy(np.asarray(direction, np.float32).reshape(-1))
-    t = avatar._tensors()
-    total = torch.zeros(t["means"].shape[0], 3)
-    for key, net in avatar.dynamics.networks().items():
-        o, cols = 0, None
-        for name, width in net.config.outputs:
-            if name == "position":
-                cols = slice(o, o + width)
-            o += width
-        if cols is None:
-            continue
-        first = avatar._first_layer.get(key)  # the avatar's cache of `precompute`, shared with `Avatar.offsets`
-        if first is None:
-            first = avatar._first_layer[key] = net.precompute(t["means"], t["features"])
-        total += mlp_jvp(net, first, z, v, cols, (t["means"], t["features"]))
-    return total.numpy()
-
-
-# --- per-attribute values ---------------------------------------------------------------------------------
-SCALE_MEASURES: tuple[str, ...] = ("size", "anisotropy")
-
-
-def scale_values(scales: np.ndarray, measure: str = "size") -> np.ndarray:
-    """size: largest axis (1 sigma, world units); anisotropy: largest / smallest axis (>= 1)."""
-    s = np.asarray(scales, dtype=np.float64)
-    if measure == "size":
-        return s.max(axis=1).astype(np.float32)
-    if measure == "anisotropy":
-        return (s.max(axis=1) / np.maximum(s.min(axis=1), 1e-30)).astype(np.float32)
-    raise ValueError(f"unknown scale measure {measure!r}; choose from {', '.join(SCALE_MEASURES)}")
-
-
-def depth_values(means: np.ndarray, camera: Camera) -> np.ndarray:
-    """Camera-space z of every centre (N,) float32."""
-    return camera.world_to_view(means)[:, 2].astype(np.float32)
-
-
-# --- counts ------------------------------------------------------------------------------------------------
-def in_frustum(camera: Camera, means: np.ndarray, near: float = 0.01) -> np.ndarray:
-    """Centres in front of the near plane (z > near) that project inside the image [0, W) x [0, H)."""
-    view = camera.world_to_view(means)
-    z = view[:, 2]
-    front = z > near
-    zs = np.where(front, z, 1.0)
-    u = camera.fx * view[:, 0] / zs + camera.cx
-    v = camera.fy * view[:, 1] / zs + camera.cy
-    return front & (u >= 0) & (u < camera.width) & (v >= 0) & (v < camera.height)
-
-
-@dataclass
-class Counts:
-    """How many Gaussians there are, are in the view frustum and are drawn, overall and per body part."""
-
-    total: int
-    in_frustum: int
-    drawn: int | None  # None: unknown (no renderer)
-    parts: list[tuple[str, int, int, int | None]] = field(default_factory=list)  # (name, total, frustum, drawn)
-
-
-def count_gaussians(camera: Camera, means: np.ndarray, part_ids: np.ndarray | None = None,
-                    part_names: list[str] | None = None, drawn: np.ndarray | int | None = None,
-                    near: float = 0.01) -> Counts:
-    """Counts for a camera. `drawn` is the renderer's drawn mask (N,) (per-part counts too) or its count."""
-    frustum = in_frustum(camera, means, near)
-    mask = np.asarray(drawn, bool) if isinstance(drawn, np.ndarray) else None
-    total_drawn = int(mask.sum()) if mask is not None else (None if drawn is None else int(drawn))
-    counts = Counts(len(frustum), int(frustum.sum()), total_drawn)
-    if part_ids is not None and part_names:
-        ids = np.asarray(part_ids)
-        labelled = [(name, ids == i) for i, name in enumerate(part_names)]
-        if np.any(ids < 0):
-            labelled.append(("(no part)", ids < 0))
-        for name, m in labelled:
-            counts.parts.append((name, int(m.sum()), int((m & frustum).sum()),
-                                 None if mask is None else int((m & mask).sum())))
-    return counts
-
-
-# --- histograms, ranges, clipping --------------------------------------------------------------------------
-def histogram(values: np.ndarray, bins: int = 64,
-              value_range: tuple[float, float] | None = None) -> tuple[np.ndarray, np.ndarray]:
-    """(counts (bins,), edges (bins + 1,)) of the finite values over `value_range` (default: min..max)."""
-    v = np.asarray(values, dtype=np.float64).reshape(-1)
-    v = v[np.isfinite(v)]
-    if value_range is None:
-        value_range = (float(v.min()), float(v.max())) if v.size else (0.0, 1.0)
-    lo, hi = value_range
-    if hi <= lo:
-        hi = lo + 1e-9
-    return np.histogram(v, bins=bins, range=(lo, hi))
-
-
-def in_range(values: np.ndarray, lo: float, hi: float) -> np.ndarray:
-    """lo <= values <= hi (NaN is outside)."""
-    v = np.asarray(values)
-    return (v >= min(lo, hi)) & (v <= max(lo, hi))
-
-
-def clip_box(means: np.ndarray, lo, hi) -> np.ndarray:
-    """Centres inside the axis-aligned box [lo, hi] (world units, boundary included): the ones kept."""
-    m = np.asarray(means, dtype=np.float64)
-    a, b = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
-    return np.all((m >= np.minimum(a, b)) & (m <= np.maximum(a, b)), axis=1)
-
-
-def clip_plane(means: np.ndarray, point, normal) -> np.ndarray:
-    """Centres on the side of the plane through `point` that `normal` points to (boundary included): kept."""
-    n = np.asarray(normal, np.float64)
-    if not np.linalg.norm(n) > 0:
-        raise ValueError("the clipping plane's normal is zero")
-    return (np.asarray(means, np.float64) - np.asarray(point, np.float64)) @ n >= 0.0
-
-
-DIM_OPACITY = 0.15  # opacity factor of Gaussians outside a highlighted range
-
-
-def recolour(posed: PosedGaussians, rgb: np.ndarray | None = None, visible: np.ndarray | None = None,
-             highlight: np.ndarray | None = None) -> PosedGaussians:
-    """What to upload: SH replaced by degree-0 `rgb` (if given); opacity 0 where not `visible`; where not in
-    `highlight`, grey (the colour's luminance, halved towards mid grey) and opacity times DIM_OPACITY."""
-    out = replace(posed)
-    if rgb is not None:
-        out.sh = rgb_to_sh0(rgb)[:, None, :]
-    if highlight is not None:
-        dim = ~np.asarray(highlight, bool)
-        base = rgb if rgb is not None else np.clip(posed.sh[:, 0] * SH_C0 + 0.5, 0.0, 1.0)
-        grey = 0.25 + 0.5 * (np.asarray(base)[dim] @ np.array([0.299, 0.587, 0.114], np.float32))
-        sh = np.array(out.sh, dtype=np.float32, copy=True)
-        sh[dim] = 0.0
-        sh[dim, 0] = rgb_to_sh0(np.repeat(grey[:, None], 3, axis=1))
-        out.sh = sh
-        out.opacities = np.where(dim, posed.opacities * DIM_OPACITY, posed.opacities).astype(np.float32)
-    if visible is not None:
-        out.opacities = np.where(np.asarray(visible, bool), out.opacities, 0.0).astype(np.float32)
-    return out
 
 
 # --- settings and the per-avatar controller -----------------------------------------------------------------

@@ -279,7 +279,7 @@ def legend_strip(width: int, label: str, cmap: str | None = None, lo: float = 0.
     `cmap` is given) or the notes as text."""
     import cv2
 
-    from npga_core.inspect import colour_map
+    from npga_core.colouring import colour_map
 
     strip = np.full((height, width, 3), 24, np.uint8)
     font, scale, white = cv2.FONT_HERSHEY_SIMPLEX, 0.38, (235, 235, 235)

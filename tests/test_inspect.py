@@ -10,25 +10,11 @@ import torch
 
 from npga_core.avatar import Avatar
 from npga_core.cameras import look_at
+from npga_core.colouring import FeaturePCA, colour_map, robust_range
 from npga_core.gaussians import SH_C0, GaussianCloud, logit, rgb_to_sh0
 from npga_core.graph import knn, laplacian_terms
-from npga_core.inspect import (
-    FeaturePCA,
-    InspectInfo,
-    Inspector,
-    InspectSettings,
-    clip_box,
-    clip_plane,
-    colour_map,
-    count_gaussians,
-    histogram,
-    in_frustum,
-    in_range,
-    offset_values,
-    parse_mode,
-    recolour,
-    robust_range,
-)
+from npga_core.inspect import InspectInfo, Inspector, InspectSettings, offset_values, parse_mode
+from npga_core.measures import clip_box, clip_plane, count_gaussians, histogram, in_frustum, in_range, recolour
 from npga_core.synthetic import make_synthetic_avatar
 
 
@@ -449,7 +435,7 @@ def test_inspect_panel_draws_every_mode_and_writes_settings(avatar, inspector, p
 @pytest.mark.parametrize("activation, skips", [("relu", []), ("silu", [2]), ("tanh", [1, 3])])
 def test_mlp_jvp_matches_autodiff_with_skips_and_activations(activation, skips) -> None:
     from npga_core.dynamics import ConditionedMLP, MLPConfig
-    from npga_core.inspect import mlp_jvp
+    from npga_core.sensitivity import mlp_jvp
 
     torch.manual_seed(0)
     net = ConditionedMLP(MLPConfig(4, 6, [("rotation", 4), ("position", 3)], hidden=16, depth=4,

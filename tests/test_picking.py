@@ -10,7 +10,7 @@ import pytest
 
 from npga_core.cameras import look_at
 from npga_core.gaussians import PosedGaussians, normalize_quats, rgb_to_sh0
-from npga_core.inspect import count_gaussians
+from npga_core.measures import count_gaussians
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from reference_rasterizer import project  # noqa: E402

@@ -24,22 +24,20 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
+from npga_core.colouring import COLOUR_MAPS, Colouring, colour_map
 from npga_core.inspect import (
     CLIP_MODES,
-    COLOUR_MAPS,
     HIST_ACTIONS,
     KNN_COLOURS,
     KNN_SHOW,
     OFFSET_ATTRIBUTES,
     OFFSET_SOURCES,
-    SCALE_MEASURES,
     STYLES,
-    Colouring,
     InspectInfo,
     InspectSettings,
-    colour_map,
     parse_mode,
 )
+from npga_core.measures import SCALE_MEASURES
 
 from ..state import ViewerState
 from .info import AppInfo, remember
