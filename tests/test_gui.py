@@ -103,10 +103,13 @@ def click(app, name, frames=2):
     """Press and release the left button at the centre of a remembered widget."""
     from imgui_bundle import imgui
 
-    x0, y0, x1, y1 = app.info.rects[name]
     io = imgui.get_io()
-    io.add_mouse_pos_event((x0 + x1) / 2, (y0 + y1) / 2)
-    app.step()
+    for _ in range(5):  # follow the widget if the layout moved it in the frame just drawn
+        x0, y0, x1, y1 = app.info.rects[name]
+        io.add_mouse_pos_event((x0 + x1) / 2, (y0 + y1) / 2)
+        app.step()
+        if app.info.rects[name] == (x0, y0, x1, y1):
+            break
     io.add_mouse_button_event(0, True)
     app.step()
     io.add_mouse_button_event(0, False)
@@ -207,7 +210,8 @@ def test_bake_through_the_ui_then_play_from_the_bake(app, tmp_path):
     click(app, "cancel_bake")
     assert app.info.bake_state == "none" and not app.state.timeline.baked
     click(app, "bake")
-    assert run_until(app, lambda: app.info.bake_state == "ready", timeout=60)
+    assert run_until(app, lambda: app.info.bake_state == "ready", timeout=60), \
+        (app.info.bake_state, app.info.bake, app.engine.status, app.state.timeline.baked)
     assert app.info.bake.from_cache
 
 

@@ -17,7 +17,9 @@ def start_xvfb(width: int = 1600, height: int = 1000) -> tuple[subprocess.Popen,
     for n in range(91, 140):
         if Path(f"/tmp/.X{n}-lock").exists() or Path(f"/tmp/.X11-unix/X{n}").exists():
             continue
-        proc = subprocess.Popen([exe, f":{n}", "-screen", "0", f"{width}x{height}x24", "-nolisten", "tcp"],
+        # -noreset: without it the server resets whenever its last client disconnects, and a window opened
+        # during that reset fails with "Failed to open display" (seen between GUI tests)
+        proc = subprocess.Popen([exe, f":{n}", "-screen", "0", f"{width}x{height}x24", "-nolisten", "tcp", "-noreset"],
                                 stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
         for _ in range(100):
             if Path(f"/tmp/.X11-unix/X{n}").exists():
