@@ -9,6 +9,9 @@ V' = V T: positions, covariances (V T carries s R into every Gaussian's frame) a
 With a calibrated rig the tracked pose is used as it is (`absolute`): the head appears where the camera saw
 it. The orbit camera frames the canonical head, so there the motion is shown relative to the first frame,
 T_0^-1 T_t, which is the identity at frame 0 and keeps the head in view.
+
+Where the Gaussians themselves must move (a posed `.ply` export in the tracking's world), `transform_posed`
+moves centres, rotations, scales and turns the SH with the head (`sh.rotate_sh`).
 """
 
 from __future__ import annotations
@@ -16,7 +19,9 @@ from __future__ import annotations
 import numpy as np
 
 from .cameras import Camera
+from .gaussians import PosedGaussians
 from .sequences import ExpressionSequence
+from .sh import rotate_sh
 
 
 def axis_angle_matrix(v: np.ndarray) -> np.ndarray:
@@ -62,3 +67,43 @@ def posed_camera(camera: Camera, transform: np.ndarray) -> Camera:
     """The camera that shows the Gaussians moved by `transform` (4x4) when given the unmoved ones."""
     return Camera(camera.world_to_camera @ transform, camera.fx, camera.fy, camera.cx, camera.cy,
                   camera.width, camera.height)
+
+
+def matrix_to_quat(r: np.ndarray) -> np.ndarray:
+    """Unit quaternion (w, x, y, z), w >= 0, of a rotation matrix (3, 3)."""
+    r = np.asarray(r, np.float64)
+    # the largest of 4w^2, 4x^2, 4y^2, 4z^2 gives the best-conditioned formula (Shepperd)
+    t = np.array([1 + r[0, 0] + r[1, 1] + r[2, 2], 1 + r[0, 0] - r[1, 1] - r[2, 2],
+                  1 - r[0, 0] + r[1, 1] - r[2, 2], 1 - r[0, 0] - r[1, 1] + r[2, 2]])
+    i = int(np.argmax(t))
+    f = 0.5 / np.sqrt(t[i])
+    if i == 0:
+        q = [0.25 / f, (r[2, 1] - r[1, 2]) * f, (r[0, 2] - r[2, 0]) * f, (r[1, 0] - r[0, 1]) * f]
+    elif i == 1:
+        q = [(r[2, 1] - r[1, 2]) * f, 0.25 / f, (r[0, 1] + r[1, 0]) * f, (r[0, 2] + r[2, 0]) * f]
+    elif i == 2:
+        q = [(r[0, 2] - r[2, 0]) * f, (r[0, 1] + r[1, 0]) * f, 0.25 / f, (r[1, 2] + r[2, 1]) * f]
+    else:
+        q = [(r[1, 0] - r[0, 1]) * f, (r[0, 2] + r[2, 0]) * f, (r[1, 2] + r[2, 1]) * f, 0.25 / f]
+    q = np.asarray(q)
+    return q if q[0] >= 0 else -q
+
+
+def transform_posed(posed: PosedGaussians, transform: np.ndarray) -> PosedGaussians:
+    """The Gaussians moved by `transform` (4x4, s R with s > 0, plus t): centres, rotations, scales, SH."""
+    m = np.asarray(transform, np.float64)
+    det = float(np.linalg.det(m[:3, :3]))
+    if not det > 0:
+        raise ValueError("a head transform must be a scaled rotation (positive determinant)")
+    s = det ** (1.0 / 3.0)
+    r = m[:3, :3] / s
+    w, x, y, z = matrix_to_quat(r)
+    q = np.asarray(posed.quats, np.float64)  # q' = q_R * q, Hamilton product
+    quats = np.stack([w * q[:, 0] - x * q[:, 1] - y * q[:, 2] - z * q[:, 3],
+                      w * q[:, 1] + x * q[:, 0] + y * q[:, 3] - z * q[:, 2],
+                      w * q[:, 2] - x * q[:, 3] + y * q[:, 0] + z * q[:, 1],
+                      w * q[:, 3] + x * q[:, 2] - y * q[:, 1] + z * q[:, 0]], axis=1)
+    means = np.asarray(posed.means, np.float64) @ m[:3, :3].T + m[:3, 3]
+    return PosedGaussians(means.astype(np.float32), quats.astype(np.float32),
+                          (s * np.asarray(posed.scales, np.float64)).astype(np.float32), posed.opacities,
+                          rotate_sh(posed.sh, r), posed.latent)

@@ -21,20 +21,26 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--sequence", type=Path, help="expression sequence (.npzseq/.npz/.npy or a tracking folder); "
                    "needs --frame")
     p.add_argument("--frame", type=int, default=None, help="frame of --sequence/--expr")
+    p.add_argument("--head-pose", choices=("off", "relative", "absolute"), default="off",
+                   help="move the Gaussians by the --sequence frame's tracked head pose, relative to its first "
+                   "frame or as tracked (into the tracking's world); SH turn with the head. Default off")
 
 
-def expression_code(args: argparse.Namespace, avatar) -> np.ndarray | None:
-    """The code selected by --expr/--sequence/--frame (None: the avatar's mean code); the same rules as
-    `npga-view render` for a single image."""
+def expression_code(args: argparse.Namespace, avatar) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The code selected by --expr/--sequence/--frame (None: the avatar's mean code), the same rules as
+    `npga-view render` for a single image, and the frame's head transform (4x4) with --head-pose."""
+    from npga_core.headpose import has_head_pose, head_transform
     from npga_core.sequences import load_sequence
 
     if args.sequence is not None and args.expr is not None:
         raise ExportError("give either --expr or --sequence, not both")
     source = args.sequence or args.expr
+    if args.head_pose != "off" and args.sequence is None:
+        raise ExportError("--head-pose needs --sequence")
     if source is None:
         if args.frame is not None:
             raise ExportError("--frame needs --sequence or --expr")
-        return None
+        return None, None
     if args.sequence is not None and args.frame is None:
         raise ExportError("--sequence needs --frame K to choose the expression")
     if avatar.code_dim == 0:
@@ -44,7 +50,12 @@ def expression_code(args: argparse.Namespace, avatar) -> np.ndarray | None:
     frame = 0 if args.frame is None else args.frame
     if not 0 <= frame < len(seq):
         raise ExportError(f"--frame {frame}: {source} has frames 0..{len(seq) - 1}")
-    return seq.codes[frame]
+    transform = None
+    if args.head_pose != "off":
+        if not has_head_pose(seq):
+            raise ExportError(f"--head-pose: {source} has no head pose (rotation, translation or scale)")
+        transform = head_transform(seq, frame, relative=args.head_pose == "relative")
+    return seq.codes[frame], transform
 
 
 def run(args: argparse.Namespace) -> int:
@@ -60,11 +71,15 @@ def run(args: argparse.Namespace) -> int:
         if not out.parent.is_dir():
             raise ExportError(f"--out {out}: folder {out.parent} does not exist")
         avatar = load_avatar(args.avatar)
-        code = expression_code(args, avatar)
+        code, transform = expression_code(args, avatar)
     except ExportError as e:
         print(f"npga-view export: error: {' '.join(str(e).split())}", file=sys.stderr)
         return 2
     posed = avatar.pose(code)
+    if transform is not None:
+        from npga_core.headpose import transform_posed
+
+        posed = transform_posed(posed, transform)
     save_posed_ply(posed, out)
     print(f"wrote {len(posed):,} Gaussians to {out}")
     return 0
