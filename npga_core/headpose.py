@@ -17,8 +17,10 @@ moves centres, rotations, scales and turns the SH with the head (`sh.rotate_sh`)
 from __future__ import annotations
 
 import numpy as np
+import torch
 
 from .cameras import Camera
+from .dynamics import quat_multiply
 from .gaussians import PosedGaussians
 from .sequences import ExpressionSequence
 from .sh import rotate_sh
@@ -97,12 +99,8 @@ def transform_posed(posed: PosedGaussians, transform: np.ndarray) -> PosedGaussi
         raise ValueError("a head transform must be a scaled rotation (positive determinant)")
     s = det ** (1.0 / 3.0)
     r = m[:3, :3] / s
-    w, x, y, z = matrix_to_quat(r)
-    q = np.asarray(posed.quats, np.float64)  # q' = q_R * q, Hamilton product
-    quats = np.stack([w * q[:, 0] - x * q[:, 1] - y * q[:, 2] - z * q[:, 3],
-                      w * q[:, 1] + x * q[:, 0] + y * q[:, 3] - z * q[:, 2],
-                      w * q[:, 2] - x * q[:, 3] + y * q[:, 0] + z * q[:, 1],
-                      w * q[:, 3] + x * q[:, 2] - y * q[:, 1] + z * q[:, 0]], axis=1)
+    q_r = torch.from_numpy(matrix_to_quat(r))
+    quats = quat_multiply(q_r, torch.from_numpy(np.asarray(posed.quats, np.float64))).numpy()  # q' = q_R q
     means = np.asarray(posed.means, np.float64) @ m[:3, :3].T + m[:3, 3]
     return PosedGaussians(means.astype(np.float32), quats.astype(np.float32),
                           (s * np.asarray(posed.scales, np.float64)).astype(np.float32), posed.opacities,
