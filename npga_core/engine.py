@@ -223,6 +223,10 @@ class _Worker:
             self.status["bake_id"] = msg[1]
             self._start_bake(*msg[2:])
         elif kind == "cancel_bake":
+            if self.want is not None and self.want[0] == "frame" and self.job is not None:
+                # a frame asked for before the cancel (same drain): answer it from the bake while there is one
+                frame_msg, self.want = self.want, None
+                self._answer_frame(frame_msg[1], frame_msg[2])
             self.job = None
             self._send_status(bake=None, bake_id=msg[1])
         return True

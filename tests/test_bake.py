@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+import time
+
 import numpy as np
 import pytest
 import torch
@@ -126,3 +128,27 @@ def test_cache_follows_the_avatar_content_not_the_file(small_npga, tmp_path):
     assert edited.content_key() != a.content_key()
     save_avatar(edited, path)  # an edit session saved over the file: baked again
     assert not bake()
+
+
+def test_frame_asked_just_before_a_cancel_is_answered(small_npga, tmp_path):
+    """A frame request and a cancel that reach the worker together: the frame comes from the bake, no error
+    (the viewer showed "no baked sequence" when the bake was dropped during baked playback)."""
+    a = read_avatar(small_npga)
+    codes = _codes(a, 4, 0)
+    with _engine(small_npga, a, tmp_path) as eng:
+        eng.bake(codes)
+        assert eng.wait_bake(timeout=120).finished
+        held = []
+        for f in (0, 1):  # hold both slots: the next answer waits in the worker until one is released
+            eng.request_frame(f)
+            held.append(eng.wait())
+        eng.request_frame(2)  # the worker takes it and blocks for a slot
+        time.sleep(0.5)
+        rid = eng.request_frame(3)  # these two are read together, after the blocked answer
+        eng.cancel_bake()
+        for r in held:
+            r.release()
+        r = eng.wait(timeout=60)
+        assert eng.last_error is None
+        assert r is not None and r.request_id == rid and r.frame == 3 and r.baked
+        r.release()
