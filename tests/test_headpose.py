@@ -42,6 +42,20 @@ def _sequence(t: int = 5) -> ExpressionSequence:
                               scale=rng.uniform(0.9, 1.1, t).astype(np.float32))
 
 
+def _avatar_with_sequence(folder, n: int, t: int):
+    """A saved synthetic avatar (a.npga) and a posed sequence of its neutral code (s.npzseq) in `folder`."""
+    from npga_core.checkpoint import save_avatar
+    from npga_core.synthetic import make_synthetic_avatar
+
+    avatar = make_synthetic_avatar(n, seed=2)
+    path = folder / "a.npga"
+    save_avatar(avatar, path)
+    seq = _sequence(t)
+    seq.codes = np.repeat(avatar.neutral_code()[None], t, 0)
+    seq.save(folder / "s.npzseq")
+    return avatar, path, seq
+
+
 def test_rotation_matrix_is_rodrigues():
     v = np.array([0.3, -1.1, 0.4])
     r = axis_angle_matrix(v)
@@ -120,16 +134,9 @@ def test_bad_scale_is_refused(tmp_path):
 def test_render_cli_head_pose(tmp_path, capsys):
     """`render --head-pose`: frame 0 relative is the unmoved picture; the absolute pose of frame k equals
     rendering with the camera moved by T_k (npy output: exact floats); errors are one line, exit 2."""
-    from npga_core.checkpoint import save_avatar
-    from npga_core.synthetic import make_synthetic_avatar
     from npga_view.cli import main
 
-    avatar = make_synthetic_avatar(800, seed=2)
-    path = tmp_path / "a.npga"
-    save_avatar(avatar, path)
-    seq = _sequence(4)
-    seq.codes = np.repeat(avatar.neutral_code()[None], 4, 0)
-    seq.save(tmp_path / "s.npzseq")
+    avatar, path, seq = _avatar_with_sequence(tmp_path, 800, 4)
     size = ["--width", "96", "--height", "120"]
 
     def render(*extra) -> np.ndarray:
@@ -193,17 +200,10 @@ def test_moved_gaussians_render_like_the_moved_camera(renderer):
 
 def test_export_cli_head_pose(tmp_path, capsys):
     """`export --head-pose absolute` writes the frame's Gaussians moved into the tracking's world."""
-    from npga_core.checkpoint import save_avatar
     from npga_core.ply import read_ply
-    from npga_core.synthetic import make_synthetic_avatar
     from npga_view.cli import main
 
-    avatar = make_synthetic_avatar(300, seed=4)
-    path = tmp_path / "a.npga"
-    save_avatar(avatar, path)
-    seq = _sequence(3)
-    seq.codes = np.repeat(avatar.neutral_code()[None], 3, 0)
-    seq.save(tmp_path / "s.npzseq")
+    avatar, path, seq = _avatar_with_sequence(tmp_path, 300, 3)
     out = tmp_path / "posed.ply"
     assert main(["export", str(path), "--out", str(out), "--sequence", str(tmp_path / "s.npzseq"), "--frame", "2",
                  "--head-pose", "absolute"]) == 0
