@@ -18,6 +18,7 @@ the CPU); without them (another build, a GPU) the chain runs on `torch.mm` with 
 from __future__ import annotations
 
 import copy
+import functools
 import platform
 import threading
 import time
@@ -34,25 +35,23 @@ from .dynamics import ATTRIBUTE_OPS, ConditionedMLP, cloud_tensors, quat_multipl
 #: Offset blocks gathered into attribute-major rows before they are applied.
 SMALL_BLOCKS = ("F.position", "G.position", "G.rotation", "G.scale", "G.opacity")
 KERNELS = ("auto", "onednn", "aten")
-_ONEDNN: list[bool] = []  # the result of the one-time check of `onednn_available`
 
 
+@functools.cache
 def onednn_available() -> bool:
     """True when torch has oneDNN's packed linear with a fused ReLU (`torch.ops.mkldnn._linear_pointwise`,
-    private to torch but what its compiler emits on CPUs) and it matches a plain product on a small test."""
-    if not _ONEDNN:
-        ok = False
-        try:
-            if torch.backends.mkldnn.is_available():
-                gen = torch.Generator().manual_seed(0)
-                x, w, b = (torch.randn(s, generator=gen) for s in ((37, 64), (48, 64), (48,)))
-                packed = torch.ops.mkldnn._reorder_linear_weight(w, 64)
-                y = torch.ops.mkldnn._linear_pointwise(x, packed, b, "relu", [], "")
-                ok = bool(torch.allclose(y, torch.relu(torch.addmm(b, x, w.t())), rtol=1e-4, atol=1e-4))
-        except (AttributeError, RuntimeError, NotImplementedError):
-            ok = False
-        _ONEDNN.append(ok)
-    return _ONEDNN[0]
+    private to torch but what its compiler emits on CPUs) and it matches a plain product on a small test
+    (checked once per process)."""
+    try:
+        if not torch.backends.mkldnn.is_available():
+            return False
+        gen = torch.Generator().manual_seed(0)
+        x, w, b = (torch.randn(s, generator=gen) for s in ((37, 64), (48, 64), (48,)))
+        packed = torch.ops.mkldnn._reorder_linear_weight(w, 64)
+        y = torch.ops.mkldnn._linear_pointwise(x, packed, b, "relu", [], "")
+        return bool(torch.allclose(y, torch.relu(torch.addmm(b, x, w.t())), rtol=1e-4, atol=1e-4))
+    except (AttributeError, RuntimeError, NotImplementedError):
+        return False
 
 
 @dataclass(frozen=True)

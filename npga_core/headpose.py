@@ -65,6 +65,14 @@ def head_transform(seq: ExpressionSequence, frame: int, relative: bool = True) -
     return np.linalg.solve(at(0), t) if relative else t
 
 
+def head_transforms(seq: ExpressionSequence, frames, mode: str, source: object) -> list[np.ndarray]:
+    """Head transforms of `frames` for a CLI's --head-pose `mode` ("relative" or "absolute"); ValueError
+    naming `source` if the sequence carries no pose."""
+    if not has_head_pose(seq):
+        raise ValueError(f"--head-pose: {source} has no head pose (rotation, translation or scale)")
+    return [head_transform(seq, f, relative=mode == "relative") for f in frames]
+
+
 def posed_camera(camera: Camera, transform: np.ndarray) -> Camera:
     """The camera that shows the Gaussians moved by `transform` (4x4) when given the unmoved ones."""
     return Camera(camera.world_to_camera @ transform, camera.fx, camera.fy, camera.cx, camera.cy,

@@ -29,7 +29,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def expression_code(args: argparse.Namespace, avatar) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The code selected by --expr/--sequence/--frame (None: the avatar's mean code), the same rules as
     `npga-view render` for a single image, and the frame's head transform (4x4) with --head-pose."""
-    from npga_core.headpose import has_head_pose, head_transform
+    from npga_core.headpose import head_transforms
     from npga_core.sequences import load_sequence
 
     if args.sequence is not None and args.expr is not None:
@@ -50,11 +50,7 @@ def expression_code(args: argparse.Namespace, avatar) -> tuple[np.ndarray | None
     frame = 0 if args.frame is None else args.frame
     if not 0 <= frame < len(seq):
         raise ExportError(f"--frame {frame}: {source} has frames 0..{len(seq) - 1}")
-    transform = None
-    if args.head_pose != "off":
-        if not has_head_pose(seq):
-            raise ExportError(f"--head-pose: {source} has no head pose (rotation, translation or scale)")
-        transform = head_transform(seq, frame, relative=args.head_pose == "relative")
+    transform = None if args.head_pose == "off" else head_transforms(seq, [frame], args.head_pose, source)[0]
     return seq.codes[frame], transform
 
 
@@ -72,7 +68,7 @@ def run(args: argparse.Namespace) -> int:
             raise ExportError(f"--out {out}: folder {out.parent} does not exist")
         avatar = load_avatar(args.avatar)
         code, transform = expression_code(args, avatar)
-    except ExportError as e:
+    except (ExportError, ValueError) as e:
         print(f"npga-view export: error: {' '.join(str(e).split())}", file=sys.stderr)
         return 2
     posed = avatar.pose(code)

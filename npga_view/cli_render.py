@@ -150,7 +150,7 @@ def _camera(args, framing_points: np.ndarray) -> Camera:
 def _codes(args, avatar) -> tuple[np.ndarray | None, float, list[np.ndarray] | None]:
     """(T, D) codes to render (None: the mean code), the frame rate and, with --head-pose, each frame's head
     transform (4x4)."""
-    from npga_core.headpose import has_head_pose, head_transform
+    from npga_core.headpose import head_transforms
     from npga_core.sequences import load_sequence
 
     source = args.sequence or args.expr
@@ -171,11 +171,7 @@ def _codes(args, avatar) -> tuple[np.ndarray | None, float, list[np.ndarray] | N
         if not 0 <= args.frame < len(codes):
             raise RenderError(f"--frame {args.frame}: {source} has frames 0..{len(codes) - 1}")
         codes, frames = codes[args.frame:args.frame + 1], [args.frame]
-    poses = None
-    if args.head_pose != "off":
-        if not has_head_pose(seq):
-            raise RenderError(f"--head-pose: {source} has no head pose (rotation, translation or scale)")
-        poses = [head_transform(seq, f, relative=args.head_pose == "relative") for f in frames]
+    poses = None if args.head_pose == "off" else head_transforms(seq, frames, args.head_pose, source)
     return codes, seq.fps, poses
 
 
