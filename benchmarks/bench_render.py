@@ -21,11 +21,11 @@ import numpy as np
 
 sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
-from npga_core.cameras import frame_points  # noqa: E402
-from npga_core.gaussians import PosedGaussians, normalize_quats  # noqa: E402
-from npga_view.gl import create_headless_context  # noqa: E402
-from npga_view.renderer import SplatRenderer  # noqa: E402
-from npga_view.sorting import sort_back_to_front, view_depths  # noqa: E402
+from npga_core.camera.cameras import frame_points  # noqa: E402
+from npga_core.model.gaussians import PosedGaussians, normalize_quats  # noqa: E402
+from npga_view.rendering.gl import create_headless_context  # noqa: E402
+from npga_view.rendering.renderer import SplatRenderer  # noqa: E402
+from npga_view.rendering.sorting import sort_back_to_front, view_depths  # noqa: E402
 
 
 def head_cloud(n: int, seed: int = 0, sh_degree: int = 3) -> PosedGaussians:

@@ -23,9 +23,9 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def _avatar(n: int, folder: Path) -> tuple[str, str]:
-    from npga_core.checkpoint import save_avatar
-    from npga_core.sequences import ExpressionSequence
-    from npga_core.synthetic import make_synthetic_avatar
+    from npga_core.files.checkpoint import save_avatar
+    from npga_core.files.sequences import ExpressionSequence
+    from npga_core.model.synthetic import make_synthetic_avatar
 
     a = make_synthetic_avatar(n, seed=0)
     path = folder / f"syn{n}.npga"
@@ -114,7 +114,7 @@ def main() -> int:
                 results.append(measure(path, seq, args.seconds, size))
                 print(json.dumps(results[-1]), flush=True)
             if args.demo:
-                from npga_core.avatar import DEMO_DIR
+                from npga_core.files.loading import DEMO_DIR
 
                 seqs = sorted((DEMO_DIR / "sequences").glob("*.npzseq"))
                 results.append(measure("demo", str(seqs[0]) if seqs else None, args.seconds, size))

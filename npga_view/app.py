@@ -7,34 +7,34 @@ otherwise the last one is composited again, so the UI stays fluid while the avat
 from __future__ import annotations
 
 import ctypes
-import datetime as _dt
-import json
 import time
 from pathlib import Path
 
 import numpy as np
 
-from npga_core.avatar import Avatar, load_avatar
-from npga_core.engine import PoseEngine
+from npga_core.camera.orbit import OrbitCamera
 from npga_core.errors import AvatarFileError
-from npga_core.gaussians import PosedGaussians
-from npga_core.headpose import has_head_pose, head_transform, posed_camera
-from npga_core.inspect import InspectInfo, Inspector
-from npga_core.orbit import OrbitCamera
-from npga_core.rig import fit_camera, load_rig
-from npga_core.sequences import ExpressionSequence, load_sequence
-from npga_core.smoothing import jitter, smooth
-
-from . import panels
-from .bake_control import BakeController
-from .edit_controller import EditController, highlight
-from .gl import window_context
-from .imgui_glfw import glfw, imgui
-from .panels.files import AVATAR_EXT
-from .panels.info import AppInfo
-from .playback import Playback
-from .renderer import NEAR, SplatRenderer
-from .state import MAX_SLIDERS, ViewerState, config_dir
+from npga_core.files.loading import load_avatar, load_sequence
+from npga_core.files.rig import fit_camera
+from npga_core.files.sequences import ExpressionSequence
+from npga_core.inspection.inspector import InspectInfo, Inspector
+from npga_core.model.avatar import Avatar
+from npga_core.model.gaussians import PosedGaussians
+from npga_core.posing.engine import PoseEngine
+from npga_core.posing.headpose import has_head_pose, head_transform, posed_camera
+from npga_view import panels
+from npga_view.controllers.actions import ActionController
+from npga_view.controllers.bake import BakeController
+from npga_view.controllers.editing import EditController, highlight
+from npga_view.controllers.playback import Playback
+from npga_view.controllers.posing import PoseController
+from npga_view.controllers.recording import Recorder
+from npga_view.imgui_glfw import glfw, imgui
+from npga_view.panels.files import AVATAR_EXT
+from npga_view.panels.info import AppInfo
+from npga_view.rendering.gl import window_context
+from npga_view.rendering.renderer import NEAR, SplatRenderer
+from npga_view.state import MAX_SLIDERS, ViewerState
 
 SIDE_PANEL = 400  # logical pixels
 
@@ -74,19 +74,10 @@ class ViewerApp:
         self.remember_recent = remember_recent
         if remember_recent:
             self.state.load_recent()
-        self._load_presets()
         self.avatar: Avatar | None = None
         self.engine: PoseEngine | None = None
         self.sequence: ExpressionSequence | None = None
-        self.codes: np.ndarray | None = None  # the sequence's (smoothed) codes
-        self._smooth_key: tuple | None = None
         self.playback: Playback | None = None
-        self.rig: dict = {}
-        self._requested: np.ndarray | None = None
-        self._shown_code: np.ndarray | None = None
-        self._shown_frame: int | None = None
-        self._requested_frame: int | None = None
-        self._frame_of_request: dict[int, int | None] = {}  # pending request id -> sequence frame it shows
         self._colouring = None  # legend of the current Inspect colour mode
         self._inspect_info_due = False
         self._dirty = True
@@ -94,12 +85,15 @@ class ViewerApp:
         self._last_t = time.perf_counter()
         self._fps_t: list[float] = []
         self.frames = 0
-        self.first_pose_shown = False
-        self._writer = None
         self.should_close = False
         self._posed: PosedGaussians | None = None  # a copy of the cloud on screen (before highlighting)
-        self.edits = EditController(self)
-        self.bakes = BakeController(self)
+        self.edits = EditController(self, self.code_for_keyframe)
+        self.poses = PoseController(self, bake_usable=lambda: self.bakes.usable(),
+                                    keyframe_code=self.edits.keyframe_code)
+        self.bakes = BakeController(self.state, lambda: self.engine, self.poses.sequence_codes, self.poses.bake_key)
+        self.recorder = Recorder(lambda: self.read_window(viewport_only=True))
+        self.actions = ActionController(self, self.poses, self.bakes, self._toggle_recording)
+        self.actions.load_presets()
         self.inspector: Inspector | None = None
         self._inspect_key: tuple | None = None
         self._click_pos: tuple[float, float] | None = None
@@ -133,15 +127,16 @@ class ViewerApp:
         if ex is not None and "neutral" in ex.named:  # open at the avatar's neutral face, not the mean code
             self.state.sliders = ex.to_sliders(ex.named["neutral"]).astype(np.float32)
         self.state.n_sliders = min(max(self.state.n_sliders, 1), max(1, min(k, MAX_SLIDERS)))
-        self._requested = self._shown_code = self._posed = None
+        self._posed = None
+        self.poses.reset()
         self.inspector = Inspector(avatar)
         self.state.inspect.picked = None
-        self.first_pose_shown = False
+        self.poses.first_pose_shown = False
         if avatar.dynamics is not None and avatar.source:
             self._start_engine(avatar.source)
         else:
-            self._show(avatar.pose())
-            self.first_pose_shown = True
+            self.show(avatar.pose())
+            self.poses.first_pose_shown = True
         if self.sequence is not None and self.sequence.dim != avatar.code_dim:
             self.state.report(f"{self.state.sequence_path}: codes have {self.sequence.dim} dims, the avatar expects "
                               f"{avatar.code_dim}; sequence closed")
@@ -155,10 +150,9 @@ class ViewerApp:
         self.engine = PoseEngine(path, len(a), a.cloud.sh.shape[1], a.cloud.latent_dim, threads=self.threads,
                                  device=self.device)
         self.bakes.forget()
-        self._requested = None  # ask the new worker for the current code
-        self._frame_of_request = {}
+        self.poses.engine_restarted()
 
-    def _show(self, posed: PosedGaussians) -> None:
+    def show(self, posed: PosedGaussians) -> None:
         """Keep `posed` as the cloud on screen; upload it as the Inspect settings colour it, with the edit
         highlights on top."""
         self._posed = posed
@@ -168,7 +162,7 @@ class ViewerApp:
         frame = None
         if self.inspector is not None and len(posed) == len(self.avatar):
             try:
-                frame = self.inspector.frame(settings, posed, self._shown_code, self.current_camera(), selection)
+                frame = self.inspector.frame(settings, posed, self.poses.shown_code, self.current_camera(), selection)
             except ValueError as e:
                 self.info.inspect = self.info.inspect or InspectInfo()
                 self.info.inspect.error = str(e)
@@ -191,12 +185,12 @@ class ViewerApp:
     def _refresh_inspect(self) -> None:
         """Rebuild the frame when the Inspect settings (or, for depth colouring, the camera) changed."""
         if self._posed is not None and (self.state.inspect.key(), self._inspect_camera_key()) != self._inspect_key:
-            self._show(self._posed)
+            self.show(self._posed)
 
     def reupload(self) -> None:
         """Upload the cloud on screen again (after a selection, hide or preview change)."""
         if self._posed is not None:
-            self._show(self._posed)
+            self.show(self._posed)
 
     def cloud_changed(self, worker_path: str | None) -> None:
         """The canonical cloud was edited: re-pose it (in the worker, from `worker_path`, if animatable)."""
@@ -204,9 +198,18 @@ class ViewerApp:
         if self.state.inspect.picked is not None and self.state.inspect.picked >= len(self.avatar):
             self.state.inspect.picked = None
         if worker_path is None:
-            self._show(self.avatar.pose())
+            self.show(self.avatar.pose())
         else:
             self._start_engine(worker_path)
+
+    def shown_posed(self) -> PosedGaussians | None:
+        """The posed cloud on screen, before highlighting (None until the first pose)."""
+        return self._posed
+
+    @property
+    def first_pose_shown(self) -> bool:
+        """True once a pose of the open avatar has been drawn."""
+        return self.poses.first_pose_shown
 
     def shown_means(self) -> np.ndarray:
         """Centres of the Gaussians on screen (canonical ones until the first pose, or after a deletion)."""
@@ -215,7 +218,8 @@ class ViewerApp:
         return np.asarray(self.avatar.cloud.means)
 
     def shown_code(self) -> np.ndarray | None:
-        return None if self._shown_code is None else self._shown_code.copy()
+        code = self.poses.shown_code
+        return None if code is None else code.copy()
 
     def code_for_keyframe(self, source: str, preset: str | None) -> np.ndarray:
         """The code a new expression keyframe takes: from the sliders, the sequence frame or a preset."""
@@ -223,16 +227,16 @@ class ViewerApp:
         if ex is None:
             raise ValueError("this avatar has no expression space")
         if source == "frame":
-            if self.codes is None:
+            if self.poses.codes is None:
                 raise ValueError("no sequence frame: open a sequence first")
-            return self.codes[self.info.frame].copy()
+            return self.poses.codes[self.info.frame].copy()
         if source == "preset":
             if preset in ex.named:
                 return ex.named[preset].copy()
             if preset in self.state.presets:
                 return np.asarray(self.state.presets[preset], np.float32)
             raise ValueError(f"no preset named {preset!r}")
-        return self._slider_code()
+        return self.poses.slider_code()
 
     def open_sequence(self, path: str) -> bool:
         """Load a sequence; refused (with both dimensions) if it does not fit the avatar."""
@@ -250,12 +254,13 @@ class ViewerApp:
         self.state.sequence_path = str(Path(path).resolve())
         self.state.timeline.time_s = 0.0
         self.state.follow_sequence = True
-        self._smooth_key = None
+        self.poses.sequence_closed()
         self._add_recent(path)
         return True
 
     def _close_sequence(self) -> None:
-        self.sequence = self.codes = self.playback = None
+        self.sequence = self.playback = None
+        self.poses.sequence_closed()
         self.info.sequence = None
         self.state.sequence_path = None
 
@@ -292,17 +297,18 @@ class ViewerApp:
         pose (of the frame on screen) while it is followed."""
         x, y, w, h = self._viewport()
         kf = self.edits
-        rig = self.state.rig_index >= 0 and bool(self.rig)
+        rig = self.state.rig_index >= 0 and bool(self.actions.rig)
         if not ignore_keyframes and kf.kf_playing and kf.keyframes.camera:
             cam = kf.keyframes.camera_at(kf.kf_time, w, h)
         elif rig:
-            names = list(self.rig)
-            cam = fit_camera(self.rig[names[self.state.rig_index % len(names)]], w, h)
+            names = list(self.actions.rig)
+            cam = fit_camera(self.actions.rig[names[self.state.rig_index % len(names)]], w, h)
         else:
             cam = self.state.camera.camera(w, h)
         seq = self.sequence
         if seq is not None and self.state.follow_sequence and self.state.timeline.head_pose and has_head_pose(seq):
-            frame = self._shown_frame if self._shown_frame is not None else self.info.frame
+            shown = self.poses.shown_frame
+            frame = shown if shown is not None else self.info.frame
             cam = posed_camera(cam, head_transform(seq, frame, relative=not rig))
         return cam
 
@@ -392,9 +398,10 @@ class ViewerApp:
             self.state.actions.append(("step", 1))
         if pressed(k.p):
             self.state.actions.append(("screenshot", None))
-        if self.rig and (pressed(k.left_bracket) or pressed(k.right_bracket)):
+        rig = self.actions.rig
+        if rig and (pressed(k.left_bracket) or pressed(k.right_bracket)):
             step = 1 if pressed(k.right_bracket) else -1
-            self.state.rig_index = (self.state.rig_index + step) % len(self.rig)
+            self.state.rig_index = (self.state.rig_index + step) % len(rig)
 
     # ---------------------------------------------------------------------------------------- actions
     def _run_actions(self) -> None:
@@ -402,192 +409,9 @@ class ViewerApp:
         for name, arg in actions:
             try:
                 if not self.edits.handle(name, arg):
-                    self._action(name, arg)
+                    self.actions.run(name, arg)
             except (AvatarFileError, ValueError, OSError) as e:
                 self.state.report(str(e))
-
-    def _action(self, name: str, arg) -> None:
-        st, ex = self.state, (self.avatar.expression if self.avatar is not None else None)
-        if name == "open_avatar":
-            if arg:
-                self.open_avatar(str(arg))
-        elif name == "open_sequence":
-            if arg:
-                self.open_sequence(str(arg))
-        elif name == "preset":
-            st.camera.preset(arg)
-            st.rig_index = -1
-        elif name == "frame_avatar":
-            self.frame_avatar()
-        elif name == "reset_camera":
-            self.frame_avatar(reset=True)
-        elif name == "reset_expression":
-            st.sliders[:] = 0
-            st.follow_sequence = False
-        elif name == "random_expression" and ex is not None:
-            st.sliders[:] = 0
-            k = min(st.n_sliders, st.sliders.size)
-            st.sliders[:k] = np.clip(np.random.default_rng().standard_normal(k), -2.5, 2.5)
-            st.follow_sequence = False
-        elif name == "sliders_from_frame" and ex is not None and self.codes is not None:
-            st.sliders = ex.to_sliders(self.codes[self.info.frame]).astype(np.float32)
-            st.follow_sequence = False
-        elif name == "apply_preset" and ex is not None:
-            code = ex.named.get(arg)
-            code = np.asarray(st.presets[arg], np.float32) if code is None else code
-            st.sliders = ex.to_sliders(code).astype(np.float32)
-            st.follow_sequence = False
-        elif name == "save_preset" and ex is not None and arg:
-            st.presets[str(arg)] = [float(v) for v in self._slider_code()]
-            self._save_presets()
-        elif name == "step" and self.sequence is not None:
-            tl = st.timeline
-            tl.playing = False
-            f = (self.info.frame + int(arg)) % len(self.sequence)
-            tl.time_s = (f + 0.5) / self.sequence.fps
-            st.follow_sequence = True
-        elif name == "bake":
-            self.bakes.start()
-        elif name == "cancel_bake":
-            self.bakes.cancel()
-        elif name == "screenshot":
-            stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-            self.screenshot(arg or f"npga-view-{stamp}.png")
-        elif name == "record":
-            self._toggle_recording()
-        elif name == "save_session":
-            st.save_session(arg or "session.json")
-        elif name == "load_session":
-            self.load_session(arg or "session.json")
-        elif name == "inspect_focus" and self._posed is not None and 0 <= int(arg) < len(self._posed):
-            st.camera.target = [float(v) for v in self._posed.means[int(arg)]]
-            st.rig_index = -1
-        elif name == "load_rig" and arg:
-            self.rig = load_rig(arg)
-            st.rig_path = str(arg)
-            st.rig_index = 0
-            self.info.rig_names = list(self.rig)
-
-    def load_session(self, path: str) -> None:
-        """Restore camera, sliders, modes and open files from a session file."""
-        old_avatar, old_seq = self.state.avatar_path, self.state.sequence_path
-        self.state.load_session(path)
-        cam, sliders = self.state.camera, self.state.sliders.copy()
-        seq_path = self.state.sequence_path
-        if self.state.avatar_path and self.state.avatar_path != old_avatar:
-            self.open_avatar(self.state.avatar_path)
-        if seq_path and seq_path != old_seq:
-            self.open_sequence(seq_path)
-        self.state.camera = cam
-        if self.avatar is not None and sliders.size == self.state.sliders.size:
-            self.state.sliders = sliders
-        if self.state.rig_path:
-            try:
-                self.rig = load_rig(self.state.rig_path)
-                self.info.rig_names = list(self.rig)
-            except AvatarFileError as e:
-                self.state.report(str(e))
-                self.state.rig_index = -1
-
-    def _presets_file(self) -> Path:
-        return config_dir() / "presets.json"
-
-    def _load_presets(self) -> None:
-        try:
-            d = json.loads(self._presets_file().read_text())
-            self.state.presets = {str(k): [float(x) for x in v] for k, v in d.items()}
-        except (OSError, ValueError, TypeError, AttributeError):
-            self.state.presets = {}
-
-    def _save_presets(self) -> None:
-        from npga_core.atomic import atomic_write
-
-        text = json.dumps(self.state.presets).encode()
-        atomic_write(self._presets_file(), lambda fh: fh.write(text))
-
-    # ------------------------------------------------------------------------------------- dynamics
-    def _slider_code(self) -> np.ndarray:
-        ex = self.avatar.expression
-        return ex.from_sliders(self.state.sliders) if self.state.sliders.size else ex.mean.copy()
-
-    def _sequence_codes(self) -> np.ndarray:
-        tl = self.state.timeline
-        key = (id(self.sequence), tl.smoothing, tl.smooth_alpha, tl.euro_min_cutoff, tl.euro_beta)
-        if key != self._smooth_key:
-            seq = self.sequence
-            self.codes = smooth(seq.codes, tl.smoothing, seq.fps, tl.smooth_alpha, tl.euro_min_cutoff, tl.euro_beta)
-            self.info.jitter_raw = jitter(seq.codes)
-            self.info.jitter_smoothed = jitter(self.codes)
-            self._smooth_key = key
-        return self.codes
-
-    def _target_code(self, dt: float) -> np.ndarray | None:
-        a = self.avatar
-        if a is None or a.dynamics is None:
-            return None
-        if self.sequence is not None and self.state.follow_sequence:
-            codes = self._sequence_codes()
-            shown = self._shown_frame == self._requested_frame
-            frame = self.playback.advance(self.state.timeline, dt, shown)
-            self.info.frame = frame
-            self._requested_frame = frame
-            return codes[frame]
-        kf = self.edits
-        if kf.kf_playing and kf.keyframes.expression:
-            return kf.keyframes.code_at(kf.kf_time)
-        if a.expression is None:
-            return a.neutral_code()
-        return self._slider_code()
-
-    def _update_pose(self, dt: float) -> None:
-        code = self._target_code(dt)
-        eng = self.engine
-        if eng is None:
-            return
-        following = self.sequence is not None and self.state.follow_sequence
-        if code is not None and (self._requested is None or not np.array_equal(code, self._requested)):
-            if following and self.bakes.usable():
-                req = eng.request_frame(self._requested_frame)
-            else:  # sliders: a fast preview first, then the exact pose; live playback: exact poses only
-                req = eng.request(code, mode="exact" if following else "auto")
-            self._requested = code.copy()
-            self._frame_of_request[req] = self._requested_frame if following else None
-        elif following and code is not None and self._shown_frame != self._requested_frame \
-                and eng.pending is None and self._shown_code is not None and np.array_equal(code, self._shown_code):
-            # a frame with the code already on screen (a held expression): it is shown as it is, and the head
-            # pose of the new frame applies
-            self._shown_frame = self._requested_frame
-            self.playback.shown(self._shown_frame, time.perf_counter(), self.state.timeline.playing)
-        result = eng.poll()
-        if eng.last_error:
-            self.state.report(eng.last_error)
-            eng.last_error = None
-        if result is not None:
-            if len(result.posed) == len(self.avatar):
-                p = result.posed
-                self._show(PosedGaussians(p.means.copy(), p.quats.copy(), p.scales.copy(), p.opacities.copy(),
-                                          p.sh.copy(), None if p.latent is None else p.latent.copy()))
-            result.release()
-            self.info.timings.update({k: v for k, v in result.timings.items() if k in ("F", "G")})
-            self._shown_code = result.code
-            self.info.preview = bool(result.preview) and not result.baked
-            self.info.baked, self.info.interpolated = result.baked, result.baked and result.preview
-            if self.info.preview:  # the exact pose of this request follows: keep its frame bookkeeping
-                result = None
-        if result is not None:
-            frame = self._frame_of_request.get(result.request_id)
-            self._frame_of_request = {k: v for k, v in self._frame_of_request.items() if k > result.request_id}
-            if frame is not None and self.playback is not None:
-                self._shown_frame = frame
-                self.playback.shown(frame, time.perf_counter(), self.state.timeline.playing)
-            self.first_pose_shown = True
-            self._dirty = True
-        self.info.posing = eng.pending is not None
-        self.info.engine_status = eng.status
-        self.info.bake, self.info.bake_state = self.bakes.status, self.bakes.state()
-        if self.playback is not None:
-            self.info.achieved_fps = self.playback.achieved_fps()
-            self.info.skipped = self.playback.skipped
 
     # --------------------------------------------------------------------------------------- drawing
     def pick(self, x: float, y: float) -> int | None:
@@ -612,7 +436,7 @@ class ViewerApp:
                 and len(self._posed) == len(self.avatar):
             self._inspect_info_due = False
             err = self.info.inspect.error if self.info.inspect is not None else None
-            self.info.inspect = self.inspector.info(self.state.inspect, self._posed, self._shown_code,
+            self.info.inspect = self.inspector.info(self.state.inspect, self._posed, self.poses.shown_code,
                                                     self._colouring, cam, self.renderer.drawn_mask(), NEAR)
             self.info.inspect.error = self.info.inspect.error or err
         x, y, w, h = self._viewport()
@@ -657,15 +481,15 @@ class ViewerApp:
         self._run_actions()
         self.edits.after_actions()
         self.edits.tick(dt)
-        self._update_pose(dt)
+        self.poses.update(dt)
+        self.info.bake, self.info.bake_state = self.bakes.status, self.bakes.state()
         self._refresh_inspect()
         self.ctx.screen.use()
         fw, fh = glfw.get_framebuffer_size(self.window)
         self.ctx.viewport = (0, 0, fw, fh)
         self.ctx.clear(0.08, 0.08, 0.09, 1.0)
         self._draw_splats()
-        if self._writer is not None:
-            self._record_frame()
+        self.recorder.frame()
         imgui.render()
         imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
         glfw.swap_buffers(self.window)
@@ -692,26 +516,13 @@ class ViewerApp:
         self.info.last_screenshot = str(path)
         return str(path)
 
+    def load_session(self, path: str) -> None:
+        """Restore camera, sliders, modes and open files from a session file."""
+        self.actions.load_session(path)
+
     def _toggle_recording(self) -> None:
-        import cv2
-
-        if self._writer is not None:
-            self._writer.release()
-            self._writer = None
-            self.info.recording = False
-            return
-        x, y, w, h = self._viewport()
-        w, h = w // 2 * 2, h // 2 * 2
-        stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-        self.record_path = f"npga-view-{stamp}.mp4"
-        self._writer = cv2.VideoWriter(self.record_path, cv2.VideoWriter_fourcc(*"mp4v"), 25.0, (w, h))
-        self._record_size = (w, h)
-        self.info.recording = True
-
-    def _record_frame(self) -> None:
-        img = self.read_window(viewport_only=True)
-        w, h = self._record_size
-        self._writer.write(np.ascontiguousarray(img[:h, :w, ::-1]))
+        self.info.recording = self.recorder.toggle(self._viewport()[2:])
+        self.record_path = self.recorder.path
 
     # ------------------------------------------------------------------------------------------ loop
     def run(self, screenshot: str | None = None, quit_after_frames: int | None = None) -> int:
@@ -720,7 +531,7 @@ class ViewerApp:
         try:
             while not self.should_close:
                 self.step()
-                if quit_after_frames is not None and (self.first_pose_shown or self.avatar is None):
+                if quit_after_frames is not None and (self.poses.first_pose_shown or self.avatar is None):
                     counted += 1
                     if counted >= quit_after_frames:
                         if screenshot:
@@ -731,9 +542,7 @@ class ViewerApp:
         return 0
 
     def close(self) -> None:
-        if self._writer is not None:
-            self._writer.release()
-            self._writer = None
+        self.recorder.stop()
         if self.engine is not None:
             self.engine.close()
             self.engine = None

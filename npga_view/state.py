@@ -13,9 +13,9 @@ from pathlib import Path
 
 import numpy as np
 
-from npga_core.atomic import atomic_write
-from npga_core.inspect import InspectSettings
-from npga_core.orbit import OrbitCamera
+from npga_core.camera.orbit import OrbitCamera
+from npga_core.files.atomic import atomic_write
+from npga_core.inspection.inspector import InspectSettings
 
 MAX_SLIDERS = 50
 RENDER_MODES = ("rgb", "depth", "alpha")

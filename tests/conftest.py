@@ -9,14 +9,14 @@ from pathlib import Path
 
 import pytest
 
-from npga_core.checkpoint import ALIGN, MAGIC, save_avatar
-from npga_core.synthetic import make_synthetic_avatar
+from npga_core.files.checkpoint import ALIGN, MAGIC, save_avatar
+from npga_core.model.synthetic import make_synthetic_avatar
 
 
 @pytest.fixture(scope="module")
 def ctx():
     """A headless OpenGL 4.3 context (EGL, else OSMesa). Skipped where there is none, except under CI."""
-    from npga_view.gl import GLUnavailableError, create_headless_context
+    from npga_view.rendering.gl import GLUnavailableError, create_headless_context
 
     try:
         context = create_headless_context()

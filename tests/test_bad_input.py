@@ -10,10 +10,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from npga_core.avatar import load_avatar
 from npga_core.errors import AvatarFileError
-from npga_core.ply import save_ply
-from npga_view.cli import main
+from npga_core.files.loading import load_avatar
+from npga_core.files.ply import save_ply
+from npga_view.cli.main import main
 
 
 class _Bomb:
@@ -128,7 +128,7 @@ def _raw_files(tmp: Path, good: Path) -> dict[str, tuple[Path, str]]:
 
 
 def _ply_files(tmp: Path) -> dict[str, tuple[Path, str]]:
-    from npga_core.synthetic import make_synthetic_avatar
+    from npga_core.model.synthetic import make_synthetic_avatar
 
     good = tmp / "good.ply"
     save_ply(make_synthetic_avatar(30, with_f=False, with_g=False).cloud, good)
@@ -185,7 +185,7 @@ def test_missing_file_and_directory(tmp_path, capsys):
 def test_real_process_exit_code_and_no_traceback(tmp_path):
     bomb = tmp_path / "bomb.npga"
     bomb.write_bytes(pickle.dumps(_Bomb(str(tmp_path / "PWNED"))))
-    r = subprocess.run([sys.executable, "-m", "npga_view.cli", "info", str(bomb)], capture_output=True, text=True)
+    r = subprocess.run([sys.executable, "-m", "npga_view.cli.main", "info", str(bomb)], capture_output=True, text=True)
     assert r.returncode == 2
     assert r.stderr.strip().count("\n") == 0 and "Traceback" not in r.stderr and str(bomb) in r.stderr
     assert not (tmp_path / "PWNED").exists()

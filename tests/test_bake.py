@@ -8,9 +8,9 @@ import numpy as np
 import pytest
 import torch
 
-from npga_core.bake import BakeStore, bake_key, cache_path, plan_stride
-from npga_core.checkpoint import read_avatar, save_avatar
-from npga_core.engine import PoseEngine
+from npga_core.files.checkpoint import read_avatar, save_avatar
+from npga_core.posing.bake import BakeStore, bake_key, cache_path, plan_stride
+from npga_core.posing.engine import PoseEngine
 
 
 @pytest.mark.parametrize("seed", range(5))

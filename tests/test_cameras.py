@@ -7,7 +7,7 @@ import json
 import numpy as np
 import pytest
 
-from npga_core.cameras import Camera, frame_points, look_at
+from npga_core.camera.cameras import Camera, frame_points, look_at
 
 
 def test_look_at_opencv_axes():

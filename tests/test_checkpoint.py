@@ -5,10 +5,10 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from npga_core.avatar import load_avatar
-from npga_core.checkpoint import FORMAT_VERSION, read_avatar, save_avatar
-from npga_core.gaussians import PER_GAUSSIAN_FIELDS
-from npga_core.synthetic import make_synthetic_avatar
+from npga_core.files.checkpoint import FORMAT_VERSION, read_avatar, save_avatar
+from npga_core.files.loading import load_avatar
+from npga_core.model.gaussians import PER_GAUSSIAN_FIELDS
+from npga_core.model.synthetic import make_synthetic_avatar
 
 
 def test_round_trip_arrays_identical(small_avatar, small_npga):
@@ -75,7 +75,7 @@ def test_save_is_atomic_and_leaves_no_temp_files(tmp_path, small_avatar, monkeyp
     save_avatar(small_avatar, target)
     before = target.read_bytes()
 
-    import npga_core.atomic as atomic
+    import npga_core.files.atomic as atomic
 
     def explode(*a, **k):
         raise OSError("disk full (simulated)")
@@ -88,7 +88,7 @@ def test_save_is_atomic_and_leaves_no_temp_files(tmp_path, small_avatar, monkeyp
 
 
 def test_header_records_version_architecture_provenance(small_npga):
-    from npga_core.checkpoint import read_header
+    from npga_core.files.checkpoint import read_header
 
     header, start = read_header(small_npga)
     assert header["format_version"] == FORMAT_VERSION and start % 64 == 0

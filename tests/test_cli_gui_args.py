@@ -5,7 +5,7 @@ from __future__ import annotations
 import pytest
 import torch
 
-from npga_view.cli import main
+from npga_view.cli.main import main
 
 
 @pytest.mark.parametrize("device, message", [

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import re
 
-from npga_core.ply import save_ply
-from npga_view.cli import main
+from npga_core.files.ply import save_ply
+from npga_view.cli.main import main
 
 
 def test_info_npga(small_npga, capsys):

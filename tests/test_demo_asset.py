@@ -10,11 +10,11 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from npga_core.avatar import Avatar, load_avatar
 from npga_core.demo.expression_map import ExpressionMap
-from npga_core.gaussians import sigmoid
-from npga_core.graph import knn
-from npga_core.sequences import load_sequence
+from npga_core.files.loading import load_avatar, load_sequence
+from npga_core.inspection.graph import knn
+from npga_core.model.avatar import Avatar
+from npga_core.model.gaussians import sigmoid
 
 DEMO = Path(__file__).resolve().parents[1] / "assets" / "demo"
 AVATAR = DEMO / "avatar.npga"

@@ -6,8 +6,8 @@ import numpy as np
 import pytest
 import torch
 
-from npga_core.dynamics import ATTRIBUTE_OPS, ConditionedMLP, MLPConfig, quat_multiply
-from npga_core.synthetic import make_synthetic_avatar
+from npga_core.model.dynamics import ATTRIBUTE_OPS, ConditionedMLP, MLPConfig, quat_multiply
+from npga_core.model.synthetic import make_synthetic_avatar
 
 
 @pytest.mark.parametrize("kw", [

@@ -13,9 +13,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from npga_core.avatar import load_avatar
-from npga_core.checkpoint import save_avatar
-from npga_core.edits import (
+from npga_core.editing.edits import (
     DeleteSelected,
     EditSession,
     Hide,
@@ -30,8 +28,10 @@ from npga_core.edits import (
     find_autosave,
     floater_mask,
 )
-from npga_core.gaussians import PER_GAUSSIAN_FIELDS, SH_C0, logit, sigmoid
-from npga_core.synthetic import make_synthetic_avatar
+from npga_core.files.checkpoint import save_avatar
+from npga_core.files.loading import load_avatar
+from npga_core.model.gaussians import PER_GAUSSIAN_FIELDS, SH_C0, logit, sigmoid
+from npga_core.model.synthetic import make_synthetic_avatar
 
 REPO = Path(__file__).resolve().parents[1]
 
@@ -229,7 +229,7 @@ def test_selection_is_undoable_and_not_dirty():
 
 
 def test_screen_and_range_selection_through_the_session():
-    from npga_core.cameras import frame_points
+    from npga_core.camera.cameras import frame_points
 
     s = EditSession(small())
     cam = frame_points(s.avatar.cloud.means, 200, 300)
@@ -361,8 +361,8 @@ def test_autosave_and_recovery(tmp_path):
 SLOW_SAVE = textwrap.dedent("""
     import os, sys, time
     import numpy as np
-    from npga_core.avatar import load_avatar
-    from npga_core.edits import DeleteSelected, EditSession
+    from npga_core.files.loading import load_avatar
+    from npga_core.editing.edits import DeleteSelected, EditSession
 
     real_fdopen = os.fdopen
 
@@ -423,7 +423,7 @@ def test_a_killed_save_leaves_the_old_file_intact(tmp_path):
 
 
 def test_export_posed_ply_leaves_out_hidden(tmp_path):
-    from npga_core.ply import read_ply
+    from npga_core.files.ply import read_ply
 
     s = EditSession(small())
     s.select(np.arange(len(s)) < 25)
@@ -510,7 +510,7 @@ def test_edit_panel_emits_actions_that_apply_carries_out():
 
 
 def test_apply_covers_the_panel_actions(tmp_path):
-    from npga_core.cameras import frame_points
+    from npga_core.camera.cameras import frame_points
     from npga_view.panels.edit import apply
 
     s = EditSession(small())

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 import numpy as np
 
-from npga_core.checkpoint import read_avatar
-from npga_core.engine import PoseEngine
+from npga_core.files.checkpoint import read_avatar
+from npga_core.posing.engine import PoseEngine
 
 
 def _engine(path):

@@ -5,16 +5,16 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from npga_core.checkpoint import save_avatar
-from npga_core.sequences import ExpressionSequence
-from npga_core.synthetic import make_synthetic_avatar
-from npga_view.cli import main
+from npga_core.files.checkpoint import save_avatar
+from npga_core.files.sequences import ExpressionSequence
+from npga_core.model.synthetic import make_synthetic_avatar
+from npga_view.cli.main import main
 
 PLY_TYPES = {"float": "f4", "float32": "f4", "double": "f8", "uchar": "u1", "int": "i4"}
 
 
 def read_vertices(path) -> np.ndarray:
-    """A minimal binary little-endian PLY reader (independent of npga_core.ply): the vertex element as a
+    """A minimal binary little-endian PLY reader (independent of npga_core.files.ply): the vertex element as a
     structured array whose field names are the property names, in file order."""
     with open(path, "rb") as fh:
         assert fh.readline() == b"ply\n"

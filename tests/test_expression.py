@@ -5,7 +5,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from npga_core.expression import ExpressionSpace
+from npga_core.model.expression import ExpressionSpace
 
 
 def test_pca_recovers_directions_and_std():

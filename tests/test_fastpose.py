@@ -9,9 +9,9 @@ import numpy as np
 import pytest
 import torch
 
-from npga_core.dynamics import ConditionedMLP, Dynamics, MLPConfig
-from npga_core.fastpose import FastPoser, onednn_available, posed_buffers
-from npga_core.synthetic import make_synthetic_avatar
+from npga_core.model.dynamics import ConditionedMLP, Dynamics, MLPConfig
+from npga_core.model.synthetic import make_synthetic_avatar
+from npga_core.posing.fastpose import FastPoser, onednn_available, posed_buffers
 
 FIELDS = ("means", "quats", "scales", "opacities", "sh", "latent")
 KERNELS = ["aten", pytest.param("onednn", marks=pytest.mark.skipif(not onednn_available(),

@@ -12,10 +12,10 @@ import numpy as np
 import pytest
 import torch
 
-from npga_core.avatar import Avatar
-from npga_core.checkpoint import ALIGN, MAGIC, expected_tensors, read_avatar, read_header, save_avatar
-from npga_core.dynamics import ConditionedMLP, Dynamics, MLPConfig
-from npga_core.synthetic import make_synthetic_avatar
+from npga_core.files.checkpoint import ALIGN, MAGIC, expected_tensors, read_avatar, read_header, save_avatar
+from npga_core.model.avatar import Avatar
+from npga_core.model.dynamics import ConditionedMLP, Dynamics, MLPConfig
+from npga_core.model.synthetic import make_synthetic_avatar
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "FORMAT.md"
 EXAMPLE_HEADING = "## 14. Example: writing a minimal file"

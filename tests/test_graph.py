@@ -1,4 +1,4 @@
-"""kNN graph of canonical centres and the Laplacian smoothness residual (npga_core.graph)."""
+"""kNN graph of canonical centres and the Laplacian smoothness residual (npga_core.inspection.graph)."""
 
 from __future__ import annotations
 
@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 import torch
 
-from npga_core.graph import knn, laplacian_penalty, laplacian_residual
+from npga_core.inspection.graph import knn, laplacian_penalty, laplacian_residual
 
 
 def brute_force_knn(points: np.ndarray, k: int) -> np.ndarray:

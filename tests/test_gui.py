@@ -10,10 +10,10 @@ import time
 import numpy as np
 import pytest
 
-from npga_core.avatar import DEMO_AVATAR
-from npga_core.checkpoint import save_avatar
-from npga_core.sequences import ExpressionSequence
-from npga_core.synthetic import make_synthetic_avatar
+from npga_core.files.checkpoint import save_avatar
+from npga_core.files.loading import DEMO_AVATAR
+from npga_core.files.sequences import ExpressionSequence
+from npga_core.model.synthetic import make_synthetic_avatar
 
 from .xvfb import start_xvfb, stop
 
@@ -168,7 +168,7 @@ def test_load_sequence_through_the_ui_and_play(app, avatar_path, tmp_path):
     end = time.monotonic() + 8
     while time.monotonic() < end:
         app.step()
-        frames_seen.add(app._shown_frame)
+        frames_seen.add(app.poses.shown_frame)
     assert len(frames_seen - {None}) >= 2, "playback should show several frames"
     assert app.playback.achieved_fps() > 0
     later = app.read_window(viewport_only=True)
@@ -200,7 +200,7 @@ def test_bake_through_the_ui_then_play_from_the_bake(app, tmp_path):
     while time.monotonic() < end:
         app.step()
         if app.info.baked:
-            baked_frames.add(app._shown_frame)
+            baked_frames.add(app.poses.shown_frame)
     assert len(baked_frames - {None}) >= 3, baked_frames
     app.state.timeline.smoothing = "exponential"
     app.step()
@@ -262,7 +262,7 @@ def test_session_round_trip(app, avatar_path, tmp_path):
 def test_cli_screenshot_and_quit(display, avatar_path, tmp_path):
     out = tmp_path / "shot.png"
     env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(tmp_path))
-    r = subprocess.run([sys.executable, "-m", "npga_view.cli", avatar_path, "--size", "800x600", "--screenshot",
+    r = subprocess.run([sys.executable, "-m", "npga_view.cli.main", avatar_path, "--size", "800x600", "--screenshot",
                         str(out), "--quit-after-frames", "2", "--threads", "1"], env=env, capture_output=True,
                        text=True, timeout=180)
     assert r.returncode == 0, r.stderr
@@ -276,7 +276,7 @@ def test_cli_bad_avatar_exits_2(display, tmp_path):
     bad = tmp_path / "x.npga"
     bad.write_bytes(b"nonsense")
     env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(tmp_path))
-    r = subprocess.run([sys.executable, "-m", "npga_view.cli", str(bad), "--screenshot", str(tmp_path / "s.png")],
+    r = subprocess.run([sys.executable, "-m", "npga_view.cli.main", str(bad), "--screenshot", str(tmp_path / "s.png")],
                        env=env, capture_output=True, text=True, timeout=120)
     assert r.returncode == 2 and "Traceback" not in r.stderr and str(bad) in r.stderr
 
@@ -291,7 +291,7 @@ def test_drop_files_and_rig_cameras(app, avatar_path, tmp_path):
     app.step()
     assert app.sequence is not None and len(app.sequence) == 5
     # a two-camera rig in NeRSemble's layout: world_2_cam per serial, shared intrinsics
-    from npga_core.cameras import frame_points
+    from npga_core.camera.cameras import frame_points
 
     cams = [frame_points(np.asarray(app.avatar.cloud.means), 550, 802, direction=d) for d in ("front", "right")]
     k = [[cams[0].fx, 0, cams[0].cx], [0, cams[0].fy, cams[0].cy], [0, 0, 1]]
@@ -402,7 +402,7 @@ def test_inspect_mode_and_pick_in_the_window(app, avatar_path):
 def test_sequence_head_pose_moves_the_view(app, tmp_path):
     """A tracked sequence with head rotation: frame 0 is the unmoved view (relative pose), a later frame turns
     the head (camera = V T_0^-1 T_t), and the Head pose checkbox turns it off again."""
-    from npga_core.headpose import head_transform
+    from npga_core.posing.headpose import head_transform
 
     path = tmp_path / "small.npga"
     save_avatar(make_synthetic_avatar(3000, seed=3), path)
@@ -422,7 +422,7 @@ def test_sequence_head_pose_moves_the_view(app, tmp_path):
     np.testing.assert_allclose(app.current_camera().world_to_camera, base, atol=1e-9)  # frame 0: identity
     unmoved = app.read_window(viewport_only=True)
     app.state.actions.append(("step", 5))
-    assert run_until(app, lambda: app._shown_frame == 5)
+    assert run_until(app, lambda: app.poses.shown_frame == 5)
     settle(app)
     want = base @ head_transform(app.sequence, 5)
     np.testing.assert_allclose(app.current_camera().world_to_camera, want, atol=1e-9)

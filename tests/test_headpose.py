@@ -7,9 +7,13 @@ import json
 import numpy as np
 import pytest
 
-from npga_core.cameras import frame_points, look_at
+from npga_core.camera.cameras import frame_points, look_at
 from npga_core.errors import AvatarFileError
-from npga_core.headpose import (
+from npga_core.files.loading import load_sequence
+from npga_core.files.sequences import ExpressionSequence
+from npga_core.files.tracking import _matrix_to_axis_angle
+from npga_core.model.sh import rotate_sh
+from npga_core.posing.headpose import (
     axis_angle_matrix,
     has_head_pose,
     head_transform,
@@ -17,9 +21,6 @@ from npga_core.headpose import (
     posed_camera,
     transform_posed,
 )
-from npga_core.sequences import ExpressionSequence, load_sequence
-from npga_core.sh import rotate_sh
-from npga_core.tracking import _matrix_to_axis_angle
 
 from .reference_rasterizer import rasterize, sh_to_rgb
 from .test_renderer import psnr, random_cloud
@@ -27,7 +28,7 @@ from .test_renderer import psnr, random_cloud
 
 @pytest.fixture
 def renderer(ctx):
-    from npga_view.renderer import SplatRenderer
+    from npga_view.rendering.renderer import SplatRenderer
 
     r = SplatRenderer(ctx, 128, 160)
     yield r
@@ -44,8 +45,8 @@ def _sequence(t: int = 5) -> ExpressionSequence:
 
 def _avatar_with_sequence(folder, n: int, t: int):
     """A saved synthetic avatar (a.npga) and a posed sequence of its neutral code (s.npzseq) in `folder`."""
-    from npga_core.checkpoint import save_avatar
-    from npga_core.synthetic import make_synthetic_avatar
+    from npga_core.files.checkpoint import save_avatar
+    from npga_core.model.synthetic import make_synthetic_avatar
 
     avatar = make_synthetic_avatar(n, seed=2)
     path = folder / "a.npga"
@@ -134,7 +135,7 @@ def test_bad_scale_is_refused(tmp_path):
 def test_render_cli_head_pose(tmp_path, capsys):
     """`render --head-pose`: frame 0 relative is the unmoved picture; the absolute pose of frame k equals
     rendering with the camera moved by T_k (npy output: exact floats); errors are one line, exit 2."""
-    from npga_view.cli import main
+    from npga_view.cli.main import main
 
     avatar, path, seq = _avatar_with_sequence(tmp_path, 800, 4)
     size = ["--width", "96", "--height", "120"]
@@ -200,8 +201,8 @@ def test_moved_gaussians_render_like_the_moved_camera(renderer):
 
 def test_export_cli_head_pose(tmp_path, capsys):
     """`export --head-pose absolute` writes the frame's Gaussians moved into the tracking's world."""
-    from npga_core.ply import read_ply
-    from npga_view.cli import main
+    from npga_core.files.ply import read_ply
+    from npga_view.cli.main import main
 
     avatar, path, seq = _avatar_with_sequence(tmp_path, 300, 3)
     out = tmp_path / "posed.ply"

@@ -1,4 +1,4 @@
-"""Inspection modes (npga_core.inspect) against their definitions on small avatars."""
+"""Inspection modes (npga_core.inspection.inspector) against their definitions on small avatars."""
 
 from __future__ import annotations
 
@@ -8,14 +8,22 @@ import numpy as np
 import pytest
 import torch
 
-from npga_core.avatar import Avatar
-from npga_core.cameras import look_at
-from npga_core.colouring import FeaturePCA, colour_map, robust_range
-from npga_core.gaussians import SH_C0, GaussianCloud, logit, rgb_to_sh0
-from npga_core.graph import knn, laplacian_terms
-from npga_core.inspect import InspectInfo, Inspector, InspectSettings, offset_values, parse_mode
-from npga_core.measures import clip_box, clip_plane, count_gaussians, histogram, in_frustum, in_range, recolour
-from npga_core.synthetic import make_synthetic_avatar
+from npga_core.camera.cameras import look_at
+from npga_core.inspection.colouring import FeaturePCA, colour_map, robust_range
+from npga_core.inspection.graph import knn, laplacian_terms
+from npga_core.inspection.inspector import InspectInfo, Inspector, InspectSettings, offset_values, parse_mode
+from npga_core.inspection.measures import (
+    clip_box,
+    clip_plane,
+    count_gaussians,
+    histogram,
+    in_frustum,
+    in_range,
+    recolour,
+)
+from npga_core.model.avatar import Avatar
+from npga_core.model.gaussians import SH_C0, GaussianCloud, logit, rgb_to_sh0
+from npga_core.model.synthetic import make_synthetic_avatar
 
 
 @pytest.fixture(scope="module")
@@ -434,8 +442,8 @@ def test_inspect_panel_draws_every_mode_and_writes_settings(avatar, inspector, p
 @pytest.mark.filterwarnings("ignore::DeprecationWarning")  # torch.func.jvp's own one-time scripting
 @pytest.mark.parametrize("activation, skips", [("relu", []), ("silu", [2]), ("tanh", [1, 3])])
 def test_mlp_jvp_matches_autodiff_with_skips_and_activations(activation, skips) -> None:
-    from npga_core.dynamics import ConditionedMLP, MLPConfig
-    from npga_core.sensitivity import mlp_jvp
+    from npga_core.inspection.sensitivity import mlp_jvp
+    from npga_core.model.dynamics import ConditionedMLP, MLPConfig
 
     torch.manual_seed(0)
     net = ConditionedMLP(MLPConfig(4, 6, [("rotation", 4), ("position", 3)], hidden=16, depth=4,

@@ -7,10 +7,10 @@ import json
 import numpy as np
 import pytest
 
-from npga_core.cameras import look_at
+from npga_core.camera.cameras import look_at
+from npga_core.camera.orbit import OrbitCamera
+from npga_core.editing.keyframes import KeyframeTimeline, ease
 from npga_core.errors import AvatarFileError
-from npga_core.keyframes import KeyframeTimeline, ease
-from npga_core.orbit import OrbitCamera
 
 
 def timeline(seed: int = 0, d: int = 5) -> KeyframeTimeline:
@@ -206,9 +206,9 @@ def test_missing_file_and_code_dim_check(tmp_path):
 
 
 def test_render_timeline_cli(tmp_path, capsys):
-    from npga_core.checkpoint import save_avatar
-    from npga_core.synthetic import make_synthetic_avatar
-    from npga_view.cli import main
+    from npga_core.files.checkpoint import save_avatar
+    from npga_core.model.synthetic import make_synthetic_avatar
+    from npga_view.cli.main import main
 
     avatar = make_synthetic_avatar(300, hidden=32, depth=2, code_dim=10, n_components=5, seed=2)
     path = tmp_path / "a.npga"
@@ -236,7 +236,7 @@ def test_render_timeline_cli(tmp_path, capsys):
         assert main(["render", str(path), *argv]) == 2, argv
         assert problem in capsys.readouterr().err
     cv2 = pytest.importorskip("cv2")
-    from npga_view.gl import GLUnavailableError, create_headless_context
+    from npga_view.rendering.gl import GLUnavailableError, create_headless_context
 
     try:
         create_headless_context().release()
@@ -259,7 +259,7 @@ def test_render_timeline_cli(tmp_path, capsys):
 
 
 def test_keyframe_panel_and_apply(tmp_path):
-    from npga_core.synthetic import make_synthetic_avatar
+    from npga_core.model.synthetic import make_synthetic_avatar
     from npga_view.panels import keyframes as panel
     from npga_view.panels.info import AppInfo
     from npga_view.state import ViewerState

@@ -7,12 +7,12 @@ import json
 import numpy as np
 import pytest
 
-from npga_core.avatar import Avatar
-from npga_core.cameras import look_at
-from npga_core.gaussians import GaussianCloud, PosedGaussians, logit, rgb_to_sh0
-from npga_core.graph import edge_lengths, edges_touching, knn, knn_cached, knn_edges
-from npga_core.inspect import PICK_COLOUR, Inspector, InspectSettings
-from npga_view.lines import pack_rgba8
+from npga_core.camera.cameras import look_at
+from npga_core.inspection.graph import edge_lengths, edges_touching, knn, knn_cached, knn_edges
+from npga_core.inspection.inspector import PICK_COLOUR, Inspector, InspectSettings
+from npga_core.model.avatar import Avatar
+from npga_core.model.gaussians import GaussianCloud, PosedGaussians, logit, rgb_to_sh0
+from npga_view.rendering.lines import pack_rgba8
 
 W, H = 96, 80
 
@@ -113,7 +113,7 @@ def test_pack_rgba8_byte_order() -> None:
 
 @pytest.fixture
 def renderer(ctx):
-    from npga_view.renderer import SplatRenderer
+    from npga_view.rendering.renderer import SplatRenderer
 
     r = SplatRenderer(ctx, W, H)
     yield r
@@ -170,8 +170,8 @@ MODES = ["features", "feature:2", "latent", "latent:1", "offset", "laplacian", "
 
 def test_render_modes_write_pictures_with_a_legend(small_npga, tmp_path, capsys) -> None:
     cv2 = pytest.importorskip("cv2")
-    from npga_view.cli import main
-    from npga_view.cli_render import LEGEND_HEIGHT
+    from npga_view.cli.main import main
+    from npga_view.cli.render import LEGEND_HEIGHT
 
     size = ["--width", "48", "--height", "64"]
     pictures = {}

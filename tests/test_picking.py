@@ -8,9 +8,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from npga_core.cameras import look_at
-from npga_core.gaussians import PosedGaussians, normalize_quats, rgb_to_sh0
-from npga_core.measures import count_gaussians
+from npga_core.camera.cameras import look_at
+from npga_core.inspection.measures import count_gaussians
+from npga_core.model.gaussians import PosedGaussians, normalize_quats, rgb_to_sh0
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from reference_rasterizer import project  # noqa: E402
@@ -20,7 +20,7 @@ W, H = 64, 80
 
 @pytest.fixture
 def renderer(ctx):
-    from npga_view.renderer import SplatRenderer
+    from npga_view.rendering.renderer import SplatRenderer
 
     r = SplatRenderer(ctx, W, H)
     yield r

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from npga_core.avatar import load_avatar
-from npga_core.ply import read_ply, save_ply, save_posed_ply, standard_fields
-from npga_core.synthetic import make_synthetic_avatar
+from npga_core.files.loading import load_avatar
+from npga_core.files.ply import read_ply, save_ply, save_posed_ply, standard_fields
+from npga_core.model.synthetic import make_synthetic_avatar
 
 
 def _independent_read(path):
-    """A minimal PLY reader written from the PLY spec, sharing no code with npga_core.ply."""
+    """A minimal PLY reader written from the PLY spec, sharing no code with npga_core.files.ply."""
     raw = path.read_bytes()
     end = raw.index(b"end_header\n") + len(b"end_header\n")
     lines = raw[:end].decode("ascii").splitlines()

@@ -8,11 +8,11 @@ import numpy as np
 import pytest
 import torch
 
-from npga_core.checkpoint import read_avatar
-from npga_core.engine import PoseEngine
-from npga_core.fastpose import FastPoser, posed_buffers
-from npga_core.preview import Previewer, PreviewModel, preview_cache_path
-from npga_core.synthetic import make_synthetic_avatar
+from npga_core.files.checkpoint import read_avatar
+from npga_core.model.synthetic import make_synthetic_avatar
+from npga_core.posing.engine import PoseEngine
+from npga_core.posing.fastpose import FastPoser, posed_buffers
+from npga_core.posing.preview import Previewer, PreviewModel, preview_cache_path
 
 
 @pytest.fixture(scope="module")

@@ -9,9 +9,9 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from npga_core.cameras import Camera, frame_points, look_at
-from npga_core.gaussians import PosedGaussians, normalize_quats
-from npga_view.sorting import depth_keys, sort_back_to_front, view_depths
+from npga_core.camera.cameras import Camera, frame_points, look_at
+from npga_core.model.gaussians import PosedGaussians, normalize_quats
+from npga_view.rendering.sorting import depth_keys, sort_back_to_front, view_depths
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from reference_rasterizer import rasterize  # noqa: E402
@@ -22,7 +22,7 @@ MIN_PSNR = 40.0
 
 @pytest.fixture
 def renderer(ctx):
-    from npga_view.renderer import SplatRenderer
+    from npga_view.rendering.renderer import SplatRenderer
 
     r = SplatRenderer(ctx, W, H)
     yield r
@@ -134,7 +134,7 @@ def test_partly_behind_camera(renderer):
 
 
 def test_synthetic_avatar(renderer):
-    from npga_core.synthetic import make_synthetic_avatar
+    from npga_core.model.synthetic import make_synthetic_avatar
 
     avatar = make_synthetic_avatar(3000, latent_dim=5, seed=5)
     g = avatar.pose(None)
@@ -143,8 +143,8 @@ def test_synthetic_avatar(renderer):
 
 
 def test_demo_avatar(ctx):
-    from npga_core.avatar import DEMO_AVATAR, load_avatar
-    from npga_view.renderer import SplatRenderer
+    from npga_core.files.loading import DEMO_AVATAR, load_avatar
+    from npga_view.rendering.renderer import SplatRenderer
 
     if not DEMO_AVATAR.is_file():
         pytest.skip(f"demo avatar not built ({DEMO_AVATAR})")
@@ -252,7 +252,7 @@ def test_flipped_draw_and_present(ctx, renderer):
 
 
 def test_camera_move_resorts_without_reupload(renderer, ctx):
-    from npga_view.renderer import SplatRenderer
+    from npga_view.rendering.renderer import SplatRenderer
 
     g = random_cloud(800, seed=11)
     renderer.set_gaussians(g)
@@ -328,7 +328,7 @@ def test_view_depths():
 # --- command line ----------------------------------------------------------------------------------------
 def test_cli_render_png_and_errors(ctx, tmp_path, small_npga, capsys):
     cv2 = pytest.importorskip("cv2")
-    from npga_view.cli import main
+    from npga_view.cli.main import main
 
     out = tmp_path / "a.png"
     assert main(["render", str(small_npga), "--out", str(out), "--width", "64", "--height", "96",
@@ -348,8 +348,8 @@ def test_cli_render_png_and_errors(ctx, tmp_path, small_npga, capsys):
 
 # --- contexts --------------------------------------------------------------------------------------------
 def test_two_contexts_do_not_interfere(ctx, renderer):
-    from npga_view.gl import create_headless_context
-    from npga_view.renderer import SplatRenderer
+    from npga_view.rendering.gl import create_headless_context
+    from npga_view.rendering.renderer import SplatRenderer
 
     g = random_cloud(300, seed=13)
     cam = off_centre_camera((0.0, 0.0, 3.0))
@@ -371,8 +371,8 @@ import sys
 import numpy as np
 sys.path.insert(0, {tests!r})
 from test_renderer import W, H, off_centre_camera, psnr, random_cloud, reference
-from npga_view.gl import GLUnavailableError, create_headless_context
-from npga_view.renderer import SplatRenderer
+from npga_view.rendering.gl import GLUnavailableError, create_headless_context
+from npga_view.rendering.renderer import SplatRenderer
 try:
     ctx = create_headless_context("osmesa")
 except GLUnavailableError as exc:

@@ -5,10 +5,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from npga_core.cameras import look_at
-from npga_core.gaussians import SH_C0, sigmoid
-from npga_core.graph import knn
-from npga_core.selection import (
+from npga_core.camera.cameras import look_at
+from npga_core.editing.selection import (
     attribute_names,
     attribute_values,
     combine,
@@ -23,7 +21,9 @@ from npga_core.selection import (
     project_front,
     shrink,
 )
-from npga_core.synthetic import make_synthetic_avatar
+from npga_core.inspection.graph import knn
+from npga_core.model.gaussians import SH_C0, sigmoid
+from npga_core.model.synthetic import make_synthetic_avatar
 
 
 @pytest.fixture

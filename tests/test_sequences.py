@@ -6,7 +6,8 @@ import numpy as np
 import pytest
 
 from npga_core.errors import AvatarFileError
-from npga_core.sequences import ExpressionSequence, load_sequence
+from npga_core.files.loading import load_sequence
+from npga_core.files.sequences import ExpressionSequence
 
 
 def test_own_format_round_trip(tmp_path):

@@ -19,20 +19,20 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from ..avatar import Avatar
-from ..checkpoint import save_avatar
-from ..dynamics import Dynamics
-from ..expression import ExpressionSpace
-from ..graph import knn
-from . import train as tr
-from .canonical import FEATURE_DIM, build_canonical
-from .colors import eyelid_mask, lip_weight
-from .expression_map import ExpressionMap
-from .expressions import ExpressionSampler, named_weights
-from .ict import DEFAULT_ICT_DIR, IctHead, load_ict
-from .sampling import interpolate, label_iris, uniform_samples
-from .sequences import build_sequences
-from .targets import AppearanceTargets, HeadTargets
+from npga_core.demo import train as tr
+from npga_core.demo.canonical import FEATURE_DIM, build_canonical
+from npga_core.demo.colors import eyelid_mask, lip_weight
+from npga_core.demo.expression_map import ExpressionMap
+from npga_core.demo.expressions import ExpressionSampler, named_weights
+from npga_core.demo.ict import DEFAULT_ICT_DIR, IctHead, load_ict
+from npga_core.demo.sampling import interpolate, label_iris, uniform_samples
+from npga_core.demo.sequences import build_sequences
+from npga_core.demo.targets import AppearanceTargets, HeadTargets
+from npga_core.files.checkpoint import save_avatar
+from npga_core.inspection.graph import knn
+from npga_core.model.avatar import Avatar
+from npga_core.model.dynamics import Dynamics
+from npga_core.model.expression import ExpressionSpace
 
 DEFAULT_OUT = Path(__file__).resolve().parents[2] / "assets" / "demo"
 

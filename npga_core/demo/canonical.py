@@ -6,10 +6,10 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..gaussians import GaussianCloud, logit
-from .colors import albedo, bake_lighting, cavity, colours_to_sh
-from .ict import PART_NAMES, IctHead
-from .sampling import SurfaceSamples, disc_attributes, sample_surface
+from npga_core.demo.colors import albedo, bake_lighting, cavity, colours_to_sh
+from npga_core.demo.ict import PART_NAMES, IctHead
+from npga_core.demo.sampling import SurfaceSamples, disc_attributes, sample_surface
+from npga_core.model.gaussians import GaussianCloud, logit
 
 FEATURE_DIM = 8
 

@@ -11,9 +11,9 @@ from __future__ import annotations
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..gaussians import rgb_to_sh0
-from .ict import LIMBUS_ANGLE, PART_NAMES, IctHead
-from .sampling import SurfaceSamples
+from npga_core.demo.ict import LIMBUS_ANGLE, PART_NAMES, IctHead
+from npga_core.demo.sampling import SurfaceSamples
+from npga_core.model.gaussians import rgb_to_sh0
 
 SH_C1 = 0.4886025119029199
 CM = 0.01

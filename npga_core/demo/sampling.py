@@ -12,8 +12,8 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.spatial import cKDTree
 
-from ..graph import knn
-from .ict import LIMBUS_ANGLE, PART_NAMES, IctHead
+from npga_core.demo.ict import LIMBUS_ANGLE, PART_NAMES, IctHead
+from npga_core.inspection.graph import knn
 
 #: Relative sample density (samples per area) of each part; parts not listed are not sampled.
 DEFAULT_DENSITY: dict[str, float] = {

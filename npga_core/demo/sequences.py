@@ -14,9 +14,9 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from ..sequences import ExpressionSequence
-from .expression_map import ExpressionMap
-from .expressions import NAMED_EXPRESSIONS, weights_from_dict
+from npga_core.demo.expression_map import ExpressionMap
+from npga_core.demo.expressions import NAMED_EXPRESSIONS, weights_from_dict
+from npga_core.files.sequences import ExpressionSequence
 
 FPS = 25.0
 

@@ -16,9 +16,9 @@ from dataclasses import dataclass
 import numpy as np
 import torch
 
-from ..gaussians import SH_C0
-from .colors import CM, smoothstep
-from .ict import PART_NAMES, GazeModel, IctHead, pose_vertices
+from npga_core.demo.colors import CM, smoothstep
+from npga_core.demo.ict import PART_NAMES, GazeModel, IctHead, pose_vertices
+from npga_core.model.gaussians import SH_C0
 
 #: Colour darkening: strength of the compression term, wrinkle stripe period, mouth-interior strength.
 COMPRESSION_DARKENING = 1.8

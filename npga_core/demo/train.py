@@ -18,10 +18,10 @@ import numpy as np
 import torch
 from scipy.spatial import cKDTree
 
-from ..dynamics import ConditionedMLP, MLPConfig
-from ..gaussians import SH_C0
-from ..graph import laplacian_penalty
-from .targets import AppearanceTargets, HeadTargets
+from npga_core.demo.targets import AppearanceTargets, HeadTargets
+from npga_core.inspection.graph import laplacian_penalty
+from npga_core.model.dynamics import ConditionedMLP, MLPConfig
+from npga_core.model.gaussians import SH_C0
 
 Log = Callable[[str], None]
 MM = 1000.0

@@ -1,6 +1,6 @@
 """Edit: selection tools, operations on the selection, floater clean-up, history, save and export.
 
-Reads ``info.edit`` (an `npga_core.edits.EditSession`, or None when no avatar is open) and ``info.avatar``.
+Reads ``info.edit`` (an `npga_core.editing.edits.EditSession`, or None when no avatar is open) and ``info.avatar``.
 Writes only `state.actions`; `apply(session, name, arg, ...)` below carries out every action except the ones
 marked "app" (they need the window or create a new session). Actions and their args:
 
@@ -43,7 +43,7 @@ from pathlib import Path
 import numpy as np
 from imgui_bundle import imgui
 
-from npga_core.edits import (
+from npga_core.editing.edits import (
     DeleteSelected,
     EditSession,
     Hide,
@@ -56,10 +56,9 @@ from npga_core.edits import (
     find_autosave,
     same_file,
 )
-from npga_core.selection import COMBINE_MODES, attribute_names, attribute_values
-
-from ..state import ViewerState
-from .info import AppInfo, remember
+from npga_core.editing.selection import COMBINE_MODES, attribute_names, attribute_values
+from npga_view.panels.info import AppInfo, remember
+from npga_view.state import ViewerState
 
 TOOLS = ("rect", "lasso", "brush", "sphere", "box", "range")
 TOOL_LABELS = ("Rectangle", "Lasso", "Brush", "Sphere", "Box", "Range")

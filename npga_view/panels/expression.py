@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from ..state import MAX_SLIDERS, ViewerState
-from .info import AppInfo, remember
+from npga_view.panels.info import AppInfo, remember
+from npga_view.state import MAX_SLIDERS, ViewerState
 
 _ui = {"preset_name": "my expression"}
 

@@ -7,8 +7,8 @@ from pathlib import Path
 
 from imgui_bundle import imgui
 
-from ..state import ViewerState
-from .info import AppInfo, remember
+from npga_view.panels.info import AppInfo, remember
+from npga_view.state import ViewerState
 
 AVATAR_EXT = (".npga", ".ply")
 SEQUENCE_EXT = (".npzseq", ".npz", ".npy")

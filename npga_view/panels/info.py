@@ -4,12 +4,12 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from npga_core.avatar import Avatar
-from npga_core.edits import EditSession
-from npga_core.engine import BakeStatus
-from npga_core.inspect import InspectInfo
-from npga_core.keyframes import KeyframeTimeline
-from npga_core.sequences import ExpressionSequence
+from npga_core.editing.edits import EditSession
+from npga_core.editing.keyframes import KeyframeTimeline
+from npga_core.files.sequences import ExpressionSequence
+from npga_core.inspection.inspector import InspectInfo
+from npga_core.model.avatar import Avatar
+from npga_core.posing.engine import BakeStatus
 
 
 @dataclass

@@ -2,12 +2,12 @@
 clipping, the kNN graph and the inspector of a picked Gaussian.
 
 Expects (the app provides them):
-- ``state.inspect``: an `npga_core.inspect.InspectSettings`; this panel writes it directly (mode, parameters,
+- ``state.inspect``: an `InspectSettings` (npga_core.inspection); this panel writes it directly (mode, parameters,
   style, histogram range and action, clipping, kNN display, `picked`, `pick_on_click`). The app rebuilds the
   frame when ``state.inspect.key()`` changes, when a new pose arrives and, if `Inspector.camera_dependent`,
   when the camera moves: ``frame = inspector.frame(settings, posed, code, camera, selection)`` then
   ``renderer.show(frame)``; a ValueError there goes to ``info.inspect.error`` (and the plain colours are shown).
-- ``info.inspect``: an `npga_core.inspect.InspectInfo` from ``inspector.info(settings, posed, code,
+- ``info.inspect``: an `npga_core.inspection.inspector.InspectInfo` from ``inspector.info(settings, posed, code,
   frame.colouring, camera, renderer.drawn_mask(), NEAR)`` after the draw (legend, counts, histogram, record of
   the picked Gaussian, kNN timing); None before an avatar is open.
 - ``info.avatar`` for the feature / latent widths, G's blocks and the expression space.
@@ -24,8 +24,8 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
-from npga_core.colouring import COLOUR_MAPS, Colouring, colour_map
-from npga_core.inspect import (
+from npga_core.inspection.colouring import COLOUR_MAPS, Colouring, colour_map
+from npga_core.inspection.inspector import (
     CLIP_MODES,
     HIST_ACTIONS,
     KNN_COLOURS,
@@ -37,10 +37,9 @@ from npga_core.inspect import (
     InspectSettings,
     parse_mode,
 )
-from npga_core.measures import SCALE_MEASURES
-
-from ..state import ViewerState
-from .info import AppInfo, remember
+from npga_core.inspection.measures import SCALE_MEASURES
+from npga_view.panels.info import AppInfo, remember
+from npga_view.state import ViewerState
 
 #: (mode name as in InspectSettings.mode without ":K", label)
 MODE_CHOICES: tuple[tuple[str, str], ...] = (
@@ -183,7 +182,7 @@ def _counts(ii: InspectInfo) -> None:
 
 # --- histogram, clipping -----------------------------------------------------------------------------------------
 def _histogram(s: InspectSettings, ii: InspectInfo | None, a, info: AppInfo) -> None:
-    from npga_core.inspect import Inspector
+    from npga_core.inspection.inspector import Inspector
 
     names = Inspector(a).attribute_names()
     s.hist_attr = _combo("Attribute##hist", s.hist_attr, names)

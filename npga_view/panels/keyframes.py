@@ -1,6 +1,6 @@
 """Keyframes: expression and camera keys on a timeline, their interpolation, playback and JSON files.
 
-Reads ``info.keyframes`` (an `npga_core.keyframes.KeyframeTimeline`, or None before one is made),
+Reads ``info.keyframes`` (an `npga_core.editing.keyframes.KeyframeTimeline`, or None before one is made),
 ``info.avatar`` and ``info.sequence``, and, when the app provides them, ``info.keyframe_time`` (the playhead in
 seconds, default 0) and ``info.keyframe_playing`` (default False). While the keyframe timeline plays, the app
 shows ``code_at(keyframe_time)`` and ``camera_at(keyframe_time, w, h)`` instead of the sliders and the orbit
@@ -25,10 +25,9 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from npga_core.keyframes import INTERPOLATIONS, KeyframeTimeline
-
-from ..state import ViewerState
-from .info import AppInfo, remember
+from npga_core.editing.keyframes import INTERPOLATIONS, KeyframeTimeline
+from npga_view.panels.info import AppInfo, remember
+from npga_view.state import ViewerState
 
 SOURCES = ("sliders", "frame", "preset")
 _ui: dict = {"time": 0.0, "interp": 1, "source": 0, "preset": 0, "path": "keyframes.json", "follow": True}

@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from ..state import ViewerState
-from .info import AppInfo
+from npga_view.panels.info import AppInfo
+from npga_view.state import ViewerState
 
 STAGES = (("F", "dynamics F"), ("G", "dynamics G"), ("cnn", "CNN"), ("sort", "sort"), ("upload", "upload"),
           ("preprocess", "project"), ("draw", "draw"))

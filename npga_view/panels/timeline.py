@@ -5,10 +5,9 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from npga_core.headpose import has_head_pose
-
-from ..state import ViewerState
-from .info import AppInfo, remember
+from npga_core.posing.headpose import has_head_pose
+from npga_view.panels.info import AppInfo, remember
+from npga_view.state import ViewerState
 
 SMOOTHING = ("none", "exponential", "one_euro")
 

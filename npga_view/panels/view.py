@@ -4,8 +4,8 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from ..state import RENDER_MODES, ViewerState
-from .info import AppInfo, remember
+from npga_view.panels.info import AppInfo, remember
+from npga_view.state import RENDER_MODES, ViewerState
 
 _ui = {"session": "session.json", "rig": ""}
 

@@ -1,0 +1,656 @@
+"""Editing an avatar's canonical Gaussians with undo/redo, saving, and crash recovery through autosaves.
+
+`EditSession` wraps an `Avatar` and owns three things besides it: the `selection` and `hidden` masks (N,) and a
+`History` of named `Command`s. Every change goes through `EditSession.run(command)`, so Ctrl+Z / Ctrl+Shift+Z
+(`undo` / `redo`) can take it back. Decisions worth knowing:
+
+- Selections are commands too (`SetSelection`), so undo restores a selection as it was; they do not make the
+  session dirty and do not touch the cloud.
+- Two counters tell the viewer what to refresh: `version` changes when the cloud changed (re-pose; the
+  avatar's caches have been invalidated), `mask_version` when the selection, hidden or preview masks changed
+  (re-highlight only). Every command bumps `mask_version`; only cloud edits bump `version`.
+- Hiding is a view aid: hidden Gaussians are still saved (use delete to drop them) and cannot be selected.
+- Arrays the session has not edited stay those of the loaded avatar (possibly read-only memory maps); the first
+  edit of a field replaces it with a writable copy, which later edits change in place. The avatar's original
+  arrays are never written to.
+- Commands store exactly what restores the previous state bit for bit: row edits the affected indices and the
+  old values, deletions the removed indices and rows (`GaussianCloud.subset` keeps every array of
+  `PER_GAUSSIAN_FIELDS` consistent; dynamics, CNN and expression space are per model and never change).
+"""
+
+from __future__ import annotations
+
+import contextlib
+import hashlib
+import itertools
+import os
+from abc import ABC, abstractmethod
+from dataclasses import replace
+from pathlib import Path
+
+import numpy as np
+
+from npga_core.camera.cameras import Camera
+from npga_core.editing.selection import (
+    attribute_values,
+    combine,
+    grow,
+    in_box,
+    in_brush,
+    in_lasso,
+    in_range,
+    in_rect,
+    in_sphere,
+    shrink,
+)
+from npga_core.inspection.graph import knn
+from npga_core.model.avatar import Avatar
+from npga_core.model.gaussians import PER_GAUSSIAN_FIELDS, SH_C0, GaussianCloud, logit, sigmoid
+
+DEFAULT_K = 8
+
+
+class SourceOverwriteError(FileExistsError):
+    """Saving would replace the file the avatar was loaded from; ask the user, then save with
+    ``overwrite_source=True``. (A FileExistsError, so code that reports OSErrors shows it too.)"""
+
+    def __init__(self, path: str | Path):
+        super().__init__(f"{path}: this is the file the avatar was opened from; overwrite it?")
+        self.path = str(path)
+
+
+class NothingSelectedError(ValueError):
+    """An operation on the selection was asked for with nothing selected."""
+
+
+# --------------------------------------------------------------------------------------------------
+# commands
+
+
+class Command(ABC):
+    """One undoable step. `do` may be called again after `undo` (redo) and must give the same result."""
+
+    name: str = "edit"
+    changes_cloud: bool = True
+    serial: int = 0  # set by History.push; identifies the state after this command
+
+    @abstractmethod
+    def do(self, s: EditSession) -> None: ...
+
+    @abstractmethod
+    def undo(self, s: EditSession) -> None: ...
+
+
+class SetSelection(Command):
+    """Replace the selection mask (the selection tools build the new mask)."""
+
+    changes_cloud = False
+
+    def __init__(self, mask: np.ndarray, name: str = "Select"):
+        self.mask = np.asarray(mask, dtype=bool).copy()
+        self.name = f"{name} ({int(self.mask.sum()):,})"
+        self._prev: np.ndarray | None = None
+
+    def do(self, s: EditSession) -> None:
+        if self.mask.shape != s.selection.shape:
+            raise ValueError(f"selection mask has {self.mask.shape[0]} rows, the avatar has {len(s)} Gaussians")
+        self._prev = s.selection
+        s.selection = self.mask.copy()
+
+    def undo(self, s: EditSession) -> None:
+        s.selection = self._prev
+
+
+class Hide(Command):
+    """Hide the selected Gaussians (they stay in the avatar and in saved files) and deselect them."""
+
+    changes_cloud = False
+
+    def __init__(self) -> None:
+        self.name = "Hide"
+        self._prev: tuple[np.ndarray, np.ndarray] | None = None
+
+    def do(self, s: EditSession) -> None:
+        s.require_selection()
+        self.name = f"Hide {int(s.selection.sum()):,}"
+        self._prev = (s.hidden, s.selection)
+        s.hidden = s.hidden | s.selection
+        s.selection = np.zeros(len(s), bool)
+
+    def undo(self, s: EditSession) -> None:
+        s.hidden, s.selection = self._prev
+
+
+class ShowAll(Command):
+    """Unhide every Gaussian."""
+
+    changes_cloud = False
+    name = "Show all"
+
+    def __init__(self) -> None:
+        self._prev: np.ndarray | None = None
+
+    def do(self, s: EditSession) -> None:
+        self._prev = s.hidden
+        s.hidden = np.zeros(len(s), bool)
+
+    def undo(self, s: EditSession) -> None:
+        s.hidden = self._prev
+
+
+class RowEdit(Command):
+    """Change `field[rows, *columns]` of the selected rows; subclasses give the new values from the old."""
+
+    field: str = ""
+    columns: tuple = ()
+
+    def __init__(self) -> None:
+        self.index: np.ndarray | None = None  # rows, fixed at the first do so redo edits the same ones
+        self._old: np.ndarray | None = None
+
+    @abstractmethod
+    def compute(self, old: np.ndarray) -> np.ndarray: ...
+
+    def do(self, s: EditSession) -> None:
+        if self.index is None:
+            self.index = np.flatnonzero(s.require_selection())
+        arr = s.writable(self.field)
+        key = (self.index, *self.columns)
+        self._old = arr[key].copy()
+        arr[key] = self.compute(self._old)
+
+    def undo(self, s: EditSession) -> None:
+        s.writable(self.field)[(self.index, *self.columns)] = self._old
+        self._old = None
+
+
+class ScaleOpacity(RowEdit):
+    """Multiply the activated opacity by `factor` (clamped to [0, 1]; stored back as logits)."""
+
+    field = "opacity_logits"
+
+    def __init__(self, factor: float):
+        super().__init__()
+        if not np.isfinite(factor) or factor < 0:
+            raise ValueError(f"opacity factor must be a finite number >= 0, got {factor}")
+        self.factor = float(factor)
+        self.name = f"Scale opacity x{self.factor:g}"
+
+    def compute(self, old: np.ndarray) -> np.ndarray:
+        return logit(np.clip(sigmoid(old).astype(np.float64) * self.factor, 0.0, 1.0))
+
+
+TINT_MODES = ("multiply", "blend")
+
+
+class Tint(RowEdit):
+    """Tint the base (SH DC) colour in RGB: multiply by `rgb`, or blend towards it; `amount` 0..1 fades the
+    effect (multiply by (1 - a) + a * rgb, blend to (1 - a) * colour + a * rgb). View-dependent terms stay."""
+
+    field = "sh"
+    columns = (0,)
+
+    def __init__(self, rgb: tuple[float, float, float], mode: str = "multiply", amount: float = 1.0):
+        super().__init__()
+        self.rgb = np.asarray(rgb, dtype=np.float64).reshape(3)
+        if mode not in TINT_MODES:
+            raise ValueError(f"unknown tint mode {mode!r}; choose from {', '.join(TINT_MODES)}")
+        if not (np.all(np.isfinite(self.rgb)) and np.isfinite(amount)):
+            raise ValueError("tint colour and amount must be finite")
+        self.mode, self.amount = mode, float(amount)
+        self.name = f"Tint {mode} ({', '.join(f'{v:.2f}' for v in self.rgb)})"
+
+    def compute(self, old: np.ndarray) -> np.ndarray:
+        colour = old.astype(np.float64) * SH_C0 + 0.5
+        a = self.amount
+        multiply = self.mode == "multiply"
+        colour = colour * ((1.0 - a) + a * self.rgb) if multiply else (1.0 - a) * colour + a * self.rgb
+        return ((colour - 0.5) / SH_C0).astype(np.float32)
+
+
+class _FeatureEdit(RowEdit):
+    field = "features"
+
+    def __init__(self, channel: int):
+        super().__init__()
+        self.channel = int(channel)
+        self.columns = (self.channel,)
+
+    def do(self, s: EditSession) -> None:
+        if not 0 <= self.channel < s.avatar.cloud.feature_dim:
+            raise ValueError(f"feature channel {self.channel} does not exist (the avatar has "
+                             f"{s.avatar.cloud.feature_dim})")
+        super().do(s)
+
+
+class SetFeature(_FeatureEdit):
+    """Set feature channel `channel` of the selected Gaussians to `value`."""
+
+    def __init__(self, channel: int, value: float):
+        super().__init__(channel)
+        if not np.isfinite(value):
+            raise ValueError(f"feature value must be finite, got {value}")
+        self.value = float(value)
+        self.name = f"Set feature {self.channel} = {self.value:g}"
+
+    def compute(self, old: np.ndarray) -> np.ndarray:
+        return np.full_like(old, self.value)
+
+
+class ScaleFeature(_FeatureEdit):
+    """Multiply feature channel `channel` of the selected Gaussians by `factor`."""
+
+    def __init__(self, channel: int, factor: float):
+        super().__init__(channel)
+        if not np.isfinite(factor):
+            raise ValueError(f"feature factor must be finite, got {factor}")
+        self.factor = float(factor)
+        self.name = f"Scale feature {self.channel} x{self.factor:g}"
+
+    def compute(self, old: np.ndarray) -> np.ndarray:
+        return (old.astype(np.float64) * self.factor).astype(old.dtype)
+
+
+class DeleteRows(Command):
+    """Delete Gaussians (rows of every per-Gaussian array); subclasses choose which by `pick`."""
+
+    def __init__(self) -> None:
+        self.index: np.ndarray | None = None  # removed rows of the cloud before the deletion, sorted
+        self._rows: dict[str, np.ndarray] | None = None
+        self._masks: tuple[np.ndarray, np.ndarray] | None = None  # selection, hidden before
+
+    @abstractmethod
+    def pick(self, s: EditSession) -> np.ndarray: ...
+
+    def do(self, s: EditSession) -> None:
+        cloud = s.avatar.cloud
+        if self.index is None:
+            self.index = np.flatnonzero(self.pick(s))
+            self.name = self.label(len(self.index))
+        if len(self.index) == 0:
+            raise NothingSelectedError("there is nothing to delete")
+        keep = np.ones(len(cloud), bool)
+        keep[self.index] = False
+        self._rows = {k: np.array(v[self.index]) for k, v in cloud.arrays().items()}
+        self._masks = (s.selection, s.hidden)
+        s.set_cloud(cloud.subset(keep))
+        s.selection = np.zeros(len(s), bool)
+        s.hidden = self._masks[1][keep]
+
+    def undo(self, s: EditSession) -> None:
+        cur = s.avatar.cloud
+        n = len(cur) + len(self.index)
+        keep = np.ones(n, bool)
+        keep[self.index] = False
+        restored = {}
+        for name in PER_GAUSSIAN_FIELDS:
+            a = getattr(cur, name)
+            if a is None:
+                continue
+            out = np.empty((n, *a.shape[1:]), dtype=a.dtype)
+            out[keep] = a
+            out[self.index] = self._rows[name]
+            restored[name] = out
+        s.set_cloud(replace(cur, **restored))
+        s.selection, s.hidden = self._masks
+        self._rows = self._masks = None
+
+    def label(self, count: int) -> str:
+        return f"Delete {count:,}"
+
+
+class DeleteSelected(DeleteRows):
+    """Delete the selected Gaussians."""
+
+    def pick(self, s: EditSession) -> np.ndarray:
+        return s.require_selection()
+
+
+class RemoveFloaters(DeleteRows):
+    """Delete the Gaussians `floater_mask` flags (within the selection if `within_selection`)."""
+
+    def __init__(self, k: int = DEFAULT_K, distance_factor: float = 3.0, min_opacity: float = 0.02,
+                 within_selection: bool = False):
+        super().__init__()
+        self.params = {"k": int(k), "distance_factor": float(distance_factor), "min_opacity": float(min_opacity)}
+        self.within_selection = within_selection
+
+    def pick(self, s: EditSession) -> np.ndarray:
+        mask = s.floater_mask(**self.params)
+        return mask & s.require_selection() if self.within_selection else mask
+
+    def label(self, count: int) -> str:
+        return f"Remove {count:,} floaters"
+
+
+def floater_mask(cloud: GaussianCloud, k: int = DEFAULT_K, distance_factor: float = 3.0, min_opacity: float = 0.02,
+                 nbrs: np.ndarray | None = None) -> np.ndarray:
+    """Gaussians that look like floaters: the mean distance to their k nearest neighbours is more than
+    `distance_factor` x its median over the cloud, or the opacity is below `min_opacity`."""
+    n = len(cloud)
+    mask = sigmoid(cloud.opacity_logits) < min_opacity
+    if n < 3:
+        return mask
+    if nbrs is None:
+        nbrs = knn(cloud.means, min(int(k), n - 1))
+    means = np.asarray(cloud.means, dtype=np.float64)
+    dist = np.linalg.norm(means[nbrs] - means[:, None, :], axis=2).mean(axis=1)
+    return mask | (dist > distance_factor * float(np.median(dist)))
+
+
+# --------------------------------------------------------------------------------------------------
+# history
+
+
+class History:
+    """Undo and redo stacks of commands, at most `limit` undo steps."""
+
+    _serials = itertools.count(1)
+
+    def __init__(self, limit: int = 200):
+        self.limit = limit
+        self.undo_stack: list[Command] = []
+        self.redo_stack: list[Command] = []
+        self.base_serial = 0  # the cloud state below the oldest kept command
+
+    def push(self, cmd: Command, s: EditSession) -> None:
+        cmd.do(s)  # an error here leaves the stacks as they were
+        cmd.serial = next(self._serials)
+        self.undo_stack.append(cmd)
+        self.redo_stack.clear()
+        while len(self.undo_stack) > self.limit:
+            dropped = self.undo_stack.pop(0)
+            if dropped.changes_cloud:
+                self.base_serial = dropped.serial
+
+    def undo(self, s: EditSession) -> Command | None:
+        if not self.undo_stack:
+            return None
+        cmd = self.undo_stack.pop()
+        cmd.undo(s)
+        self.redo_stack.append(cmd)
+        return cmd
+
+    def redo(self, s: EditSession) -> Command | None:
+        if not self.redo_stack:
+            return None
+        cmd = self.redo_stack.pop()
+        cmd.do(s)
+        self.undo_stack.append(cmd)
+        return cmd
+
+    def cloud_serial(self) -> int:
+        """Identifies the current cloud content: the serial of the newest applied cloud edit."""
+        return next((c.serial for c in reversed(self.undo_stack) if c.changes_cloud), self.base_serial)
+
+    def names(self) -> tuple[list[str], list[str]]:
+        """(undo names oldest first, redo names next-to-redo first)."""
+        return [c.name for c in self.undo_stack], [c.name for c in reversed(self.redo_stack)]
+
+
+# --------------------------------------------------------------------------------------------------
+# the session
+
+
+def autosave_dir() -> Path:
+    """`$XDG_CACHE_HOME/npga-view/autosave` (default `~/.cache/...`)."""
+    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
+    return Path(base) / "npga-view" / "autosave"
+
+
+def autosave_path_for(source: str | Path | None) -> Path:
+    """The autosave file of edits to `source` (one per source file; None: an avatar without a file)."""
+    if source is None:
+        key, stem = "untitled", "untitled"
+    else:
+        key, stem = str(Path(source).resolve()), Path(source).stem
+    return autosave_dir() / f"{stem}-{hashlib.sha1(key.encode()).hexdigest()[:12]}.npga"
+
+
+def find_autosave(source: str | Path | None) -> Path | None:
+    """The autosave of unsaved edits to `source`, if one exists and is newer than the source file."""
+    path = autosave_path_for(source)
+    if not path.is_file():
+        return None
+    with contextlib.suppress(OSError):
+        if source is not None and Path(source).stat().st_mtime > path.stat().st_mtime:
+            return None
+    return path
+
+
+def same_file(a: str | Path, b: str | Path | None) -> bool:
+    """Whether two paths name the same file (also when `a` does not exist yet)."""
+    if b is None:
+        return False
+    with contextlib.suppress(OSError):
+        return os.path.samefile(a, b)
+    return Path(a).resolve() == Path(b).resolve()
+
+
+class EditSession:
+    """An avatar being edited: selection, hidden mask, history, dirty flag, saving and autosave."""
+
+    def __init__(self, avatar: Avatar, source: str | Path | None = None, history_limit: int = 200):
+        self.avatar = avatar
+        self.source = str(source) if source is not None else avatar.source
+        self.save_path: str | None = None  # where "Save" writes after a "Save as"
+        self.history = History(history_limit)
+        self.selection = np.zeros(len(avatar), bool)
+        self.hidden = np.zeros(len(avatar), bool)
+        self.preview: np.ndarray | None = None  # e.g. the floaters that would go
+        self.version = 0
+        self.mask_version = 0
+        self._saved_serial = 0
+        self._owned: set[str] = set()
+        self._nbrs: tuple[np.ndarray, int, np.ndarray] | None = None  # (means it was built on, k, graph)
+
+    def __len__(self) -> int:
+        return len(self.avatar)
+
+    # -- state ------------------------------------------------------------------------------------
+    @property
+    def dirty(self) -> bool:
+        """True when the cloud differs from the last save (or the source, before any save)."""
+        return self.history.cloud_serial() != self._saved_serial
+
+    @property
+    def can_undo(self) -> bool:
+        return bool(self.history.undo_stack)
+
+    @property
+    def can_redo(self) -> bool:
+        return bool(self.history.redo_stack)
+
+    def require_selection(self) -> np.ndarray:
+        """The selection mask, or NothingSelectedError when it is empty."""
+        if not self.selection.any():
+            raise NothingSelectedError("nothing is selected")
+        return self.selection
+
+    def writable(self, name: str) -> np.ndarray:
+        """The cloud's array `name`, replaced by a writable copy the first time the session edits it."""
+        if name not in self._owned:
+            setattr(self.avatar.cloud, name, np.array(getattr(self.avatar.cloud, name), copy=True))
+            self._owned.add(name)
+        return getattr(self.avatar.cloud, name)
+
+    def set_cloud(self, cloud: GaussianCloud) -> None:
+        """Install a new cloud whose arrays the session owns (made by deletion or its undo)."""
+        self.avatar.cloud = cloud
+        self._owned = {k for k in PER_GAUSSIAN_FIELDS if getattr(cloud, k) is not None}
+
+    def neighbours(self, k: int = DEFAULT_K) -> np.ndarray:
+        """kNN graph (N, k) of the canonical centres, cached until the centres change."""
+        means = self.avatar.cloud.means
+        if self._nbrs is None or self._nbrs[0] is not means or self._nbrs[1] != k:
+            k_eff = min(k, len(means) - 1)
+            graph = knn(means, k_eff) if k_eff >= 1 else np.zeros((len(means), 0), np.int32)
+            self._nbrs = (means, k, graph)
+        return self._nbrs[2]
+
+    # -- running commands -------------------------------------------------------------------------
+    def run(self, cmd: Command) -> Command:
+        """Do `cmd` and put it on the undo stack."""
+        self.history.push(cmd, self)
+        self._changed(cmd)
+        return cmd
+
+    def undo(self) -> Command | None:
+        """Take back the newest command; returns it (None if there was nothing to undo)."""
+        cmd = self.history.undo(self)
+        if cmd is not None:
+            self._changed(cmd)
+        return cmd
+
+    def redo(self) -> Command | None:
+        """Do the newest undone command again."""
+        cmd = self.history.redo(self)
+        if cmd is not None:
+            self._changed(cmd)
+        return cmd
+
+    def _changed(self, cmd: Command) -> None:
+        self.preview = None
+        self.mask_version += 1
+        if cmd.changes_cloud:
+            self.avatar.invalidate_caches()
+            self.version += 1
+
+    # -- selection ----------------------------------------------------------------------------------
+    def select(self, mask: np.ndarray, mode: str = "replace", name: str = "Select") -> bool:
+        """Merge `mask` (hidden Gaussians left out) into the selection as an undoable step; False if nothing
+        changed (then no step is recorded)."""
+        mask = np.asarray(mask, dtype=bool)
+        if mask.shape != self.selection.shape:
+            raise ValueError(f"selection mask has shape {mask.shape}, the avatar has {len(self)} Gaussians")
+        new = combine(self.selection, mask & ~self.hidden, mode)
+        if np.array_equal(new, self.selection):
+            return False
+        self.run(SetSelection(new, name))
+        return True
+
+    def _pts(self, means: np.ndarray | None) -> np.ndarray:
+        return self.avatar.cloud.means if means is None else means
+
+    def select_rect(self, camera: Camera, x0: float, y0: float, x1: float, y1: float, mode: str = "replace",
+                    means: np.ndarray | None = None) -> bool:
+        """Rectangle in pixels. `means`: the positions on screen (posed); default the canonical ones."""
+        return self.select(in_rect(camera, self._pts(means), x0, y0, x1, y1), mode, "Rectangle")
+
+    def select_lasso(self, camera: Camera, polygon_px: np.ndarray, mode: str = "replace",
+                     means: np.ndarray | None = None) -> bool:
+        return self.select(in_lasso(camera, self._pts(means), polygon_px), mode, "Lasso")
+
+    def select_brush(self, camera: Camera, centres_px: np.ndarray, radius_px: float, mode: str = "add",
+                     means: np.ndarray | None = None) -> bool:
+        """A brush stroke: the union of discs at `centres_px` (M, 2), recorded as one step."""
+        pts = self._pts(means)
+        hit = np.zeros(len(self), bool)
+        for c in np.asarray(centres_px, dtype=np.float64).reshape(-1, 2):
+            hit |= in_brush(camera, pts, c, radius_px)
+        return self.select(hit, mode, "Brush")
+
+    def select_sphere(self, centre: np.ndarray, radius: float, mode: str = "replace",
+                      means: np.ndarray | None = None) -> bool:
+        return self.select(in_sphere(self._pts(means), centre, radius), mode, "Sphere")
+
+    def select_box(self, lo: np.ndarray, hi: np.ndarray, transform: np.ndarray | None = None, mode: str = "replace",
+                   means: np.ndarray | None = None) -> bool:
+        return self.select(in_box(self._pts(means), lo, hi, transform), mode, "Box")
+
+    def select_range(self, attribute: str, lo: float, hi: float, mode: str = "replace") -> bool:
+        """By a canonical attribute's value (see `selection.attribute_values`)."""
+        return self.select(in_range(attribute_values(self.avatar.cloud, attribute), lo, hi), mode, attribute)
+
+    def grow(self, steps: int = 1, k: int = DEFAULT_K) -> bool:
+        return self.select(grow(self.selection, self.neighbours(k), steps), "replace", "Grow")
+
+    def shrink(self, steps: int = 1, k: int = DEFAULT_K) -> bool:
+        return self.select(shrink(self.selection, self.neighbours(k), steps), "replace", "Shrink")
+
+    def invert(self) -> bool:
+        return self.select(~self.selection, "replace", "Invert")
+
+    def select_all(self) -> bool:
+        return self.select(np.ones(len(self), bool), "replace", "Select all")
+
+    def clear_selection(self) -> bool:
+        return self.select(np.zeros(len(self), bool), "replace", "Clear selection")
+
+    # -- operations ---------------------------------------------------------------------------------
+    def floater_mask(self, k: int = DEFAULT_K, distance_factor: float = 3.0, min_opacity: float = 0.02) -> np.ndarray:
+        return floater_mask(self.avatar.cloud, k, distance_factor, min_opacity, self.neighbours(k))
+
+    def preview_floaters(self, k: int = DEFAULT_K, distance_factor: float = 3.0, min_opacity: float = 0.02) -> int:
+        """Put the floaters that `RemoveFloaters` would delete into `preview`; returns their count."""
+        self.preview = self.floater_mask(k, distance_factor, min_opacity)
+        self.mask_version += 1
+        return int(self.preview.sum())
+
+    def clear_preview(self) -> None:
+        self.preview = None
+        self.mask_version += 1
+
+    # -- files ------------------------------------------------------------------------------------------
+    def save(self, path: str | Path | None = None, overwrite_source: bool = False) -> Path:
+        """Write the edited avatar as `.npga` (atomically). No path: the last "Save as" target, else the source.
+
+        Raises SourceOverwriteError when the target is the file the avatar was opened from, unless
+        `overwrite_source`; ValueError when there is nowhere to save.
+        """
+        from npga_core.files.checkpoint import save_avatar
+
+        target = path if path is not None else (self.save_path or self.source)
+        if target is None:
+            raise ValueError("this avatar has no file yet: use Save as")
+        target = Path(target)
+        if same_file(target, self.source) and not overwrite_source:
+            raise SourceOverwriteError(target)
+        edits = [c.name for c in self.history.undo_stack if c.changes_cloud]
+        save_avatar(self.avatar, target, provenance={"edited_from": self.source, "edits": edits})
+        self.save_path = str(target)
+        self._saved_serial = self.history.cloud_serial()
+        self.discard_autosave()
+        return target
+
+    def autosave_path(self) -> Path:
+        return autosave_path_for(self.source)
+
+    def autosave(self) -> Path | None:
+        """Write unsaved edits to `autosave_path()` (atomically); None when there is nothing unsaved."""
+        from npga_core.files.checkpoint import save_avatar
+
+        if not self.dirty:
+            return None
+        path = self.autosave_path()
+        save_avatar(self.avatar, path, provenance={"autosave_of": self.source})
+        return path
+
+    def discard_autosave(self) -> None:
+        with contextlib.suppress(OSError):
+            self.autosave_path().unlink()
+
+    @classmethod
+    def recover(cls, source: str | Path) -> EditSession:
+        """A session on the autosaved edits of `source` (dirty: the edits are not in `source` yet).
+
+        Raises FileNotFoundError when there is no autosave and AvatarFileError when it does not load.
+        """
+        from npga_core.files.loading import load_avatar
+
+        path = find_autosave(source)
+        if path is None:
+            raise FileNotFoundError(f"{source}: no autosaved edits")
+        session = cls(load_avatar(path), source=source)
+        session._saved_serial = -1
+        return session
+
+    def export_posed_ply(self, path: str | Path, code: np.ndarray | None = None, include_hidden: bool = False) -> int:
+        """Write the avatar posed at `code` (None: the mean) as a standard 3DGS `.ply`; returns the count."""
+        from npga_core.files.ply import save_posed_ply
+
+        posed = self.avatar.pose(code)
+        if not include_hidden and self.hidden.any():
+            posed = posed.subset(~self.hidden)
+        save_posed_ply(posed, path)
+        return len(posed)

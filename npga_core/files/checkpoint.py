@@ -1,0 +1,494 @@
+"""The `.npga` checkpoint format: one file, a JSON header and raw little-endian arrays, memory-mapped.
+
+Layout (see docs/FORMAT.md for every tensor):
+
+    offset 0   8 bytes   magic b"\\x89NPGA\\r\\n\\x1a"
+    offset 8   8 bytes   header length L, uint64 little-endian
+    offset 16  L bytes   UTF-8 JSON header (padded with spaces)
+    D = 16+L             data section; D and every tensor offset are multiples of 64
+
+Nothing in a file is ever executed or unpickled. The reader derives the full expected tensor set with
+shapes and dtypes from the header's architecture, compares it with the tensor table, bounds-checks every
+range against the file size, and checks values (finite floats, usable quaternions, parts in range).
+"""
+
+from __future__ import annotations
+
+import datetime as _dt
+import json
+import math
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import torch
+
+from npga_core import __version__
+from npga_core.errors import AvatarFileError
+from npga_core.files.atomic import atomic_write
+from npga_core.model.avatar import Avatar
+from npga_core.model.cnn import CNNConfig, ScreenCNN
+from npga_core.model.dynamics import ConditionedMLP, Dynamics, MLPConfig
+from npga_core.model.expression import ExpressionSpace
+from npga_core.model.gaussians import GaussianCloud, sh_coeff_count
+
+MAGIC = b"\x89NPGA\r\n\x1a"
+FORMAT_VERSION = 1
+ALIGN = 64
+MAX_HEADER_BYTES = 64 * 1024 * 1024
+_DTYPES = {"float32": np.dtype("<f4"), "int16": np.dtype("<i2")}
+
+Spec = dict[str, tuple[str, tuple[int, ...]]]
+
+
+def _align(n: int) -> int:
+    return (n + ALIGN - 1) // ALIGN * ALIGN
+
+
+# --------------------------------------------------------------------------------------------------
+# the expected tensors, derived from a header
+
+
+def expected_tensors(header: dict) -> Spec:
+    """name -> (dtype, shape) of every tensor a file with this header must hold (and no others)."""
+    g = header["gaussians"]
+    n, k, f, h = g["count"], sh_coeff_count(g["sh_degree"]), g["feature_dim"], g["latent_dim"]
+    spec: Spec = {
+        "gaussians.means": ("float32", (n, 3)),
+        "gaussians.quats": ("float32", (n, 4)),
+        "gaussians.log_scales": ("float32", (n, 3)),
+        "gaussians.opacity_logits": ("float32", (n,)),
+        "gaussians.sh": ("float32", (n, k, 3)),
+        "gaussians.features": ("float32", (n, f)),
+    }
+    if h:
+        spec["gaussians.latent"] = ("float32", (n, h))
+    if g.get("part_names"):
+        spec["gaussians.part_ids"] = ("int16", (n,))
+    dyn = header.get("dynamics")
+    if dyn:
+        for key in ("F", "G"):
+            if dyn.get(key) is None:
+                continue
+            cfg = MLPConfig.from_json(dyn[key])
+            spec[f"dynamics.{key}.input_shift"] = ("float32", (cfg.raw_input_dim,))
+            spec[f"dynamics.{key}.input_scale"] = ("float32", (cfg.raw_input_dim,))
+            for i, (o, fan_in) in enumerate(cfg.layer_shapes()):
+                spec[f"dynamics.{key}.layers.{i}.weight"] = ("float32", (o, fan_in))
+                spec[f"dynamics.{key}.layers.{i}.bias"] = ("float32", (o,))
+    cnn = header.get("cnn")
+    if cnn:
+        for i, layer in enumerate(CNNConfig.from_json(cnn).layers):
+            spec[f"cnn.layers.{i}.weight"] = ("float32", (layer.out_channels, layer.in_channels, layer.kernel,
+                                                          layer.kernel))
+            spec[f"cnn.layers.{i}.bias"] = ("float32", (layer.out_channels,))
+    ex = header.get("expression")
+    if ex:
+        d, c = ex["dim"], ex["n_components"]
+        spec["expression.mean"] = ("float32", (d,))
+        spec["expression.basis"] = ("float32", (c, d))
+        spec["expression.std"] = ("float32", (c,))
+        if ex.get("named"):
+            spec["expression.named"] = ("float32", (len(ex["named"]), d))
+    return spec
+
+
+# --------------------------------------------------------------------------------------------------
+# writing
+
+
+def _avatar_header(avatar: Avatar, provenance: dict) -> tuple[dict, dict[str, np.ndarray]]:
+    c = avatar.cloud
+    header: dict[str, Any] = {
+        "format": "npga",
+        "format_version": FORMAT_VERSION,
+        "units": avatar.units,
+        "gaussians": {
+            "count": len(c),
+            "sh_degree": c.sh_degree,
+            "feature_dim": c.feature_dim,
+            "latent_dim": c.latent_dim,
+            "part_names": list(c.part_names) if c.part_ids is not None else [],
+        },
+        "dynamics": None,
+        "cnn": None,
+        "expression": None,
+        "provenance": provenance,
+    }
+    arrays: dict[str, np.ndarray] = {
+        "gaussians.means": c.means,
+        "gaussians.quats": c.quats,
+        "gaussians.log_scales": c.log_scales,
+        "gaussians.opacity_logits": c.opacity_logits,
+        "gaussians.sh": c.sh,
+        "gaussians.features": c.features,
+    }
+    if c.latent is not None:
+        arrays["gaussians.latent"] = c.latent
+    if c.part_ids is not None:
+        arrays["gaussians.part_ids"] = c.part_ids
+    if avatar.dynamics is not None:
+        avatar.dynamics.validate_for(c)
+        dyn: dict[str, Any] = {"rotation_op": avatar.dynamics.rotation_op, "F": None, "G": None}
+        for key, net in avatar.dynamics.networks().items():
+            dyn[key] = net.config.to_json()
+            for name, t in net.state_dict().items():
+                arrays[f"dynamics.{key}.{name}"] = t.detach().cpu().numpy()
+        header["dynamics"] = dyn
+    if avatar.cnn is not None:
+        avatar.cnn.config.validate(c.latent_dim)
+        header["cnn"] = avatar.cnn.config.to_json()
+        for i, conv in enumerate(avatar.cnn.convs):
+            arrays[f"cnn.layers.{i}.weight"] = conv.weight.detach().cpu().numpy()
+            arrays[f"cnn.layers.{i}.bias"] = conv.bias.detach().cpu().numpy()
+    ex = avatar.expression
+    if ex is not None:
+        ex.validate()
+        header["expression"] = {"dim": ex.dim, "n_components": ex.n_components, "named": list(ex.named)}
+        arrays["expression.mean"] = ex.mean
+        arrays["expression.basis"] = ex.basis
+        arrays["expression.std"] = ex.std
+        if ex.named:
+            arrays["expression.named"] = np.stack([ex.named[k] for k in ex.named])
+    return header, arrays
+
+
+def save_avatar(avatar: Avatar, path: str | Path, provenance: dict | None = None) -> None:
+    """Write `avatar` to `path` atomically (temp file in the same folder, fsync, rename).
+
+    A crash at any point leaves either the old file or the complete new one.
+    """
+    path = Path(path)
+    prov = dict(avatar.provenance)
+    prov.update(provenance or {})
+    prov.setdefault("created_at", _dt.datetime.now(_dt.UTC).isoformat(timespec="seconds"))
+    prov["written_by"] = f"npga-view {__version__}"
+    header, arrays = _avatar_header(avatar, prov)
+    spec = expected_tensors(header)
+    if set(spec) != set(arrays):
+        raise ValueError(f"internal: tensors {sorted(set(spec) ^ set(arrays))} do not match the header")
+    table, offset = {}, 0
+    for name, (dt, shape) in spec.items():
+        a = arrays[name]
+        if tuple(a.shape) != shape:
+            raise ValueError(f"{name} has shape {tuple(a.shape)}, the header implies {shape}")
+        nbytes = int(np.prod(shape, dtype=np.int64)) * _DTYPES[dt].itemsize
+        table[name] = {"dtype": dt, "shape": list(shape), "offset": offset, "nbytes": nbytes}
+        offset = _align(offset + nbytes)
+    header["tensors"] = table
+    header["data_nbytes"] = offset
+    text = json.dumps(header, indent=1, allow_nan=False).encode("utf-8")
+    data_start = _align(16 + len(text))
+    text += b" " * (data_start - 16 - len(text))
+
+    def write(fh) -> None:
+        fh.write(MAGIC)
+        fh.write(len(text).to_bytes(8, "little"))
+        fh.write(text)
+        pos = 0
+        for name, entry in table.items():
+            fh.write(b"\0" * (entry["offset"] - pos))
+            a = np.ascontiguousarray(arrays[name], dtype=_DTYPES[entry["dtype"]])
+            if a.size:
+                fh.write(memoryview(a.reshape(-1)).cast("B"))
+            pos = entry["offset"] + entry["nbytes"]
+        fh.write(b"\0" * (offset - pos))
+
+    atomic_write(path, write)
+
+
+# --------------------------------------------------------------------------------------------------
+# reading
+
+
+class _Invalid(Exception):
+    """A problem found while validating; turned into AvatarFileError with the path."""
+
+
+def _reject_constant(name: str) -> None:
+    raise _Invalid(f"header contains {name}, which is not valid JSON")
+
+
+def _unique_pairs(pairs: list) -> dict:
+    d = {}
+    for k, v in pairs:
+        if k in d:
+            raise _Invalid(f"header has the key {k!r} twice")
+        d[k] = v
+    return d
+
+
+def _int(d: dict, key: str, where: str, lo: int = 0, hi: int = 2**40) -> int:
+    v = d.get(key)
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise _Invalid(f"{where}.{key} must be an integer, got {type(v).__name__}")
+    if not lo <= v <= hi:
+        raise _Invalid(f"{where}.{key} = {v} is outside {lo}..{hi}")
+    return v
+
+
+def read_header(path: str | Path) -> tuple[dict, int]:
+    """Read and check the header; returns (header, data_start). Raises AvatarFileError."""
+    path = Path(path)
+    try:
+        return _read_header(path)
+    except _Invalid as e:
+        raise AvatarFileError(path, str(e)) from None
+    except OSError as e:
+        raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None
+
+
+def _read_header(path: Path) -> tuple[dict, int]:
+    size = path.stat().st_size
+    if size == 0:
+        raise _Invalid("file is empty")
+    with open(path, "rb") as fh:
+        magic = fh.read(8)
+        if magic != MAGIC[: len(magic)] or len(magic) < 8:
+            if magic == MAGIC[: len(magic)]:
+                raise _Invalid(f"truncated: {size} bytes, too short for the file signature")
+            raise _Invalid(f"not an .npga checkpoint (wrong magic {magic!r})")
+        raw_len = fh.read(8)
+        if len(raw_len) < 8:
+            raise _Invalid(f"truncated: {size} bytes, the header length is cut off")
+        hlen = int.from_bytes(raw_len, "little")
+        if hlen > MAX_HEADER_BYTES:
+            raise _Invalid(f"header length {hlen} bytes is implausible (limit {MAX_HEADER_BYTES})")
+        if 16 + hlen > size:
+            raise _Invalid(f"truncated: header needs {16 + hlen} bytes, the file has {size}")
+        text = fh.read(hlen)
+    try:
+        header = json.loads(text.decode("utf-8"), parse_constant=_reject_constant, object_pairs_hook=_unique_pairs)
+    except UnicodeDecodeError:
+        raise _Invalid("header is not UTF-8 text") from None
+    except json.JSONDecodeError as e:
+        raise _Invalid(f"header is not valid JSON ({e.msg} at byte {e.pos})") from None
+    except RecursionError:
+        raise _Invalid("header JSON is nested too deeply") from None
+    if not isinstance(header, dict) or header.get("format") != "npga":
+        raise _Invalid("header does not declare format 'npga'")
+    version = header.get("format_version")
+    if isinstance(version, bool) or not isinstance(version, int):
+        raise _Invalid(f"format_version must be an integer, got {version!r}")
+    if version > FORMAT_VERSION:
+        raise _Invalid(f"format version {version} is newer than this reader supports ({FORMAT_VERSION}); "
+                       "update npga-view")
+    if version < 1:
+        raise _Invalid(f"format version {version} is not valid")
+    _check_header_schema(header)
+    data_start = 16 + hlen
+    if data_start % ALIGN:
+        raise _Invalid(f"data section starts at {data_start}, not a multiple of {ALIGN}")
+    return header, data_start
+
+
+def _check_header_schema(header: dict) -> None:
+    g = header.get("gaussians")
+    if not isinstance(g, dict):
+        raise _Invalid("header has no 'gaussians' object")
+    _int(g, "count", "gaussians", 0, 2**31 - 1)
+    _int(g, "sh_degree", "gaussians", 0, 3)
+    _int(g, "feature_dim", "gaussians", 0, 4096)
+    _int(g, "latent_dim", "gaussians", 0, 4096)
+    parts = g.get("part_names", [])
+    if not isinstance(parts, list) or not all(isinstance(p, str) for p in parts) or len(parts) > 32767:
+        raise _Invalid("gaussians.part_names must be a list of strings")
+    if len(set(parts)) != len(parts):
+        raise _Invalid("gaussians.part_names has duplicate names")
+    if not isinstance(header.get("units", "m"), str):
+        raise _Invalid("units must be a string")
+    for key in ("dynamics", "cnn", "expression", "provenance"):
+        if header.get(key) is not None and not isinstance(header[key], dict):
+            raise _Invalid(f"header.{key} must be an object or null")
+    dyn = header.get("dynamics")
+    if dyn:
+        if dyn.get("F") is None and dyn.get("G") is None:
+            raise _Invalid("dynamics has neither F nor G")
+        if dyn.get("rotation_op", "compose") not in ("compose", "add"):
+            raise _Invalid(f"dynamics.rotation_op {dyn.get('rotation_op')!r} is not 'compose' or 'add'")
+        for key in ("F", "G"):
+            cfg = dyn.get(key)
+            if cfg is None:
+                continue
+            if not isinstance(cfg, dict):
+                raise _Invalid(f"dynamics.{key} must be an object")
+            for name in ("feature_dim", "code_dim", "hidden", "depth", "pos_freqs"):
+                if name in cfg:
+                    _int(cfg, name, f"dynamics.{key}", 0, 65536)
+            try:
+                MLPConfig.from_json(cfg)
+            except ValueError as e:
+                raise _Invalid(f"dynamics.{key}: {e}") from None
+    if header.get("cnn"):
+        try:
+            CNNConfig.from_json(header["cnn"])
+        except ValueError as e:
+            raise _Invalid(f"cnn: {e}") from None
+    ex = header.get("expression")
+    if ex:
+        _int(ex, "dim", "expression", 1, 65536)
+        _int(ex, "n_components", "expression", 0, 65536)
+        named = ex.get("named", [])
+        if not isinstance(named, list) or not all(isinstance(p, str) for p in named):
+            raise _Invalid("expression.named must be a list of strings")
+        if len(set(named)) != len(named):
+            raise _Invalid("expression.named has duplicate names")
+    if not isinstance(header.get("tensors"), dict):
+        raise _Invalid("header has no 'tensors' table")
+
+
+def _map_tensors(path: Path, header: dict, data_start: int) -> dict[str, np.ndarray]:
+    spec = expected_tensors(header)
+    table = header["tensors"]
+    missing = [n for n in spec if n not in table]
+    if missing:
+        raise _Invalid(f"missing tensor{'s' if len(missing) > 1 else ''} {', '.join(missing[:5])}")
+    extra = [n for n in table if n not in spec]
+    if extra:
+        raise _Invalid(f"unexpected tensor{'s' if len(extra) > 1 else ''} {', '.join(map(repr, extra[:5]))} "
+                       "(not implied by the header's architecture)")
+    size = path.stat().st_size
+    end_needed = data_start
+    entries = {}
+    for name, (dt, shape) in spec.items():
+        e = table[name]
+        if not isinstance(e, dict):
+            raise _Invalid(f"tensor table entry {name} is not an object")
+        if e.get("dtype") != dt:
+            raise _Invalid(f"{name} has dtype {e.get('dtype')!r}, expected {dt}")
+        shp = e.get("shape")
+        if not isinstance(shp, list) or any(isinstance(s, bool) or not isinstance(s, int) for s in shp):
+            raise _Invalid(f"{name} has a malformed shape {shp!r}")
+        if tuple(shp) != shape:
+            raise _Invalid(f"{name} has shape {tuple(shp)}, the header implies {shape}")
+        off = _int(e, "offset", name, 0, 2**62)
+        nbytes = _int(e, "nbytes", name, 0, 2**62)
+        want = math.prod(shape) * _DTYPES[dt].itemsize
+        if nbytes != want:
+            raise _Invalid(f"{name} declares {nbytes} bytes, its shape needs {want}")
+        if off % ALIGN:
+            raise _Invalid(f"{name} offset {off} is not aligned to {ALIGN}")
+        entries[name] = (dt, shape, off, nbytes)
+        end_needed = max(end_needed, data_start + off + nbytes)
+    if end_needed > size:
+        raise _Invalid(f"truncated: data needs {end_needed} bytes, the file has {size}")
+    if "data_nbytes" in header:
+        declared = _int(header, "data_nbytes", "header", 0, 2**62)
+        if data_start + declared > size:
+            raise _Invalid(f"truncated: the data section is {declared} bytes, the file has {size - data_start}")
+    spans = sorted((off, off + nb, n) for n, (_, _, off, nb) in entries.items() if nb)
+    for (_, e0, n0), (s1, _, n1) in zip(spans, spans[1:], strict=False):
+        if s1 < e0:
+            raise _Invalid(f"tensors {n0} and {n1} overlap")
+    mm = np.memmap(path, dtype=np.uint8, mode="r") if size else np.zeros(0, np.uint8)
+    out = {}
+    for name, (dt, shape, off, nbytes) in entries.items():
+        buf = mm[data_start + off : data_start + off + nbytes]
+        out[name] = buf.view(_DTYPES[dt]).reshape(shape)
+    return out
+
+
+def _check_values(t: dict[str, np.ndarray], header: dict) -> None:
+    for name, a in t.items():
+        if a.dtype.kind == "f" and a.size and not np.isfinite(a).all():
+            bad = int(a.size - np.count_nonzero(np.isfinite(a)))
+            raise _Invalid(f"{name} has {bad} NaN/Inf value{'s' if bad > 1 else ''}")
+    q = t["gaussians.quats"]
+    if q.size:
+        nq = np.einsum("ij,ij->i", q, q)
+        zero = int(np.count_nonzero(nq < 1e-16))
+        if zero:
+            raise _Invalid(f"gaussians.quats has {zero} zero-length quaternion{'s' if zero > 1 else ''}")
+    ls = t["gaussians.log_scales"]
+    if ls.size and np.abs(ls).max() > 80:
+        raise _Invalid("gaussians.log_scales has values beyond +-80 (scale overflows float32)")
+    if "gaussians.part_ids" in t:
+        p = t["gaussians.part_ids"]
+        n_parts = len(header["gaussians"]["part_names"])
+        if p.size and (p.min() < -1 or p.max() >= n_parts):
+            raise _Invalid(f"gaussians.part_ids has values outside -1..{n_parts - 1}")
+
+
+def _build_avatar(path: Path, header: dict, t: dict[str, np.ndarray]) -> Avatar:
+    g = header["gaussians"]
+    cloud = GaussianCloud(
+        means=t["gaussians.means"],
+        quats=t["gaussians.quats"],
+        log_scales=t["gaussians.log_scales"],
+        opacity_logits=t["gaussians.opacity_logits"],
+        sh=t["gaussians.sh"],
+        features=t["gaussians.features"],
+        latent=t.get("gaussians.latent"),
+        part_ids=t.get("gaussians.part_ids"),
+        part_names=list(g.get("part_names", [])),
+    )
+    dynamics = None
+    dyn = header.get("dynamics")
+    if dyn:
+        nets: dict[str, ConditionedMLP | None] = {}
+        for key in ("F", "G"):
+            if dyn.get(key) is None:
+                nets[key] = None
+                continue
+            net = ConditionedMLP(MLPConfig.from_json(dyn[key]))
+            state = {name[len(f"dynamics.{key}.") :]: torch.from_numpy(np.array(a))
+                     for name, a in t.items() if name.startswith(f"dynamics.{key}.")}
+            net.load_state_dict(state, strict=True)
+            net.eval()
+            nets[key] = net
+        try:
+            dynamics = Dynamics(nets["F"], nets["G"], dyn.get("rotation_op", "compose"))
+            dynamics.validate_for(cloud)
+        except ValueError as e:
+            raise _Invalid(f"dynamics do not fit the Gaussians: {e}") from None
+    cnn = None
+    if header.get("cnn"):
+        cfg = CNNConfig.from_json(header["cnn"])
+        try:
+            cfg.validate(cloud.latent_dim)
+        except ValueError as e:
+            raise _Invalid(f"cnn: {e}") from None
+        cnn = ScreenCNN(cfg)
+        state = {}
+        for i in range(len(cfg.layers)):
+            state[f"convs.{i}.weight"] = torch.from_numpy(np.array(t[f"cnn.layers.{i}.weight"]))
+            state[f"convs.{i}.bias"] = torch.from_numpy(np.array(t[f"cnn.layers.{i}.bias"]))
+        cnn.load_state_dict(state, strict=True)
+        cnn.eval()
+    expression = None
+    ex = header.get("expression")
+    if ex:
+        named = {}
+        if ex.get("named"):
+            codes = np.array(t["expression.named"])
+            named = {name: codes[i] for i, name in enumerate(ex["named"])}
+        expression = ExpressionSpace(np.array(t["expression.mean"]), np.array(t["expression.basis"]),
+                                     np.array(t["expression.std"]), named)
+        try:
+            expression.validate()
+        except ValueError as e:
+            raise _Invalid(f"expression space: {e}") from None
+        if dynamics is not None and expression.dim != dynamics.code_dim:
+            raise _Invalid(f"expression space has {expression.dim} dims, the dynamics take {dynamics.code_dim}")
+    prov = header.get("provenance") or {}
+    return Avatar(cloud, dynamics, cnn, expression, provenance=prov, units=str(header.get("units", "m")),
+                  source=str(path))
+
+
+def read_avatar(path: str | Path) -> Avatar:
+    """Read and fully validate a `.npga` file; per-Gaussian arrays stay memory-mapped (read-only).
+
+    Raises AvatarFileError("path: problem") for anything wrong with the file.
+    """
+    path = Path(path)
+    header, data_start = read_header(path)
+    try:
+        tensors = _map_tensors(path, header, data_start)
+        _check_values(tensors, header)
+        return _build_avatar(path, header, tensors)
+    except _Invalid as e:
+        raise AvatarFileError(path, str(e)) from None
+    except (KeyError, TypeError, ValueError) as e:
+        raise AvatarFileError(path, f"malformed header: {e}") from None
+    except OSError as e:
+        raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None

@@ -1,0 +1,77 @@
+"""The one place that opens avatars and sequences: decides the format and dispatches to its reader.
+
+`load_avatar` reads `.npga` checkpoints and 3DGS PLY files (by their first bytes) and the bundled demo;
+`load_sequence` reads `.npzseq`/`.npz`, `.npy` and MonoNPHM tracking folders. The model knows no file format.
+"""
+
+from __future__ import annotations
+
+from pathlib import Path
+
+import numpy as np
+
+from npga_core.errors import AvatarFileError
+from npga_core.files.checkpoint import MAGIC, read_avatar
+from npga_core.files.ply import read_ply
+from npga_core.files.sequences import DEFAULT_FPS, ExpressionSequence, read_npz, validate_sequence
+from npga_core.files.tracking import load_mononphm_folder
+from npga_core.model.avatar import Avatar
+
+#: Where the bundled demo avatar lives (repository checkout or editable install).
+DEMO_DIR = Path(__file__).resolve().parents[2] / "assets" / "demo"
+DEMO_AVATAR = DEMO_DIR / "avatar.npga"
+
+
+def load_avatar(path: str | Path) -> Avatar:
+    """Open a `.npga` checkpoint, a 3DGS `.ply`, or "demo"; raises AvatarFileError on bad input.
+
+    The type is decided by the file's first bytes, not its name.
+    """
+    if str(path) == "demo":
+        if not DEMO_AVATAR.is_file():
+            raise AvatarFileError(DEMO_AVATAR, "the bundled demo avatar is missing (build it with "
+                                  "`python -m npga_core.demo.build`)")
+        path = DEMO_AVATAR
+    p = Path(path)
+    try:
+        with open(p, "rb") as fh:
+            head = fh.read(len(MAGIC))
+    except FileNotFoundError:
+        raise AvatarFileError(p, "no such file") from None
+    except IsADirectoryError:
+        raise AvatarFileError(p, "is a directory, not an avatar file") from None
+    except OSError as e:
+        raise AvatarFileError(p, f"cannot open: {e.strerror or e}") from None
+    if head and MAGIC.startswith(head):  # whole signature, or a file cut inside it
+        return read_avatar(p)
+    if head.startswith(b"ply"):
+        return Avatar(read_ply(p), provenance={"source": str(p), "format": "3dgs-ply"}, source=str(p))
+    if not head:
+        raise AvatarFileError(p, "file is empty")
+    raise AvatarFileError(p, f"not an .npga checkpoint or a PLY file (starts with {head[:8]!r})")
+
+
+def load_sequence(path: str | Path, fps: float | None = None) -> ExpressionSequence:
+    """Load `.npzseq`/`.npz` (codes under a common key), `.npy` (T, D), or a MonoNPHM tracking folder."""
+    path = Path(path)
+    if path.is_dir():
+        seq = load_mononphm_folder(path)
+    elif not path.exists():
+        raise AvatarFileError(path, "no such file")
+    elif path.suffix == ".npy":
+        try:
+            codes = np.load(path, allow_pickle=False)
+        except (ValueError, OSError, EOFError) as e:
+            raise AvatarFileError(path, f"not a readable .npy array ({e})") from None
+        if codes.ndim == 1:
+            codes = codes[None]
+        elif codes.ndim == 3 and codes.shape[1] == 1:
+            codes = codes[:, 0]
+        if codes.dtype.kind not in "fiu":
+            raise AvatarFileError(path, f"array has dtype {codes.dtype}, expected numbers")
+        seq = ExpressionSequence(np.asarray(codes, np.float32), DEFAULT_FPS, path.stem)
+    else:
+        seq = read_npz(path)
+    if fps is not None:
+        seq.fps = float(fps)
+    return validate_sequence(seq, path)

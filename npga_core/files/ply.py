@@ -1,0 +1,203 @@
+"""Standard 3D Gaussian Splatting `.ply` files, in and out.
+
+The layout written (and expected) is the one of the reference 3DGS code, one float32 vertex element:
+``x y z nx ny nz f_dc_0..2 f_rest_0..(3*(K-1)-1) opacity scale_0..2 rot_0..3`` where K = (degree+1)^2,
+opacity is a logit, scales are logs, rot is (w, x, y, z), and f_rest is channel-major:
+``f_rest[c*(K-1) + j]`` is SH coefficient j+1 of colour channel c.
+"""
+
+from __future__ import annotations
+
+import re
+from pathlib import Path
+
+import numpy as np
+
+from npga_core.errors import AvatarFileError
+from npga_core.files.atomic import atomic_write
+from npga_core.model.gaussians import GaussianCloud, PosedGaussians, logit, sh_coeff_count
+
+_PLY_TYPES = {
+    "char": "i1", "int8": "i1", "uchar": "u1", "uint8": "u1",
+    "short": "i2", "int16": "i2", "ushort": "u2", "uint16": "u2",
+    "int": "i4", "int32": "i4", "uint": "u4", "uint32": "u4",
+    "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
+}
+MAX_HEADER_BYTES = 1 << 20
+
+
+def standard_fields(sh_degree: int) -> list[str]:
+    """Property names of the 3DGS vertex element, in order."""
+    k = sh_coeff_count(sh_degree)
+    return (["x", "y", "z", "nx", "ny", "nz", "f_dc_0", "f_dc_1", "f_dc_2"]
+            + [f"f_rest_{i}" for i in range(3 * (k - 1))]
+            + ["opacity", "scale_0", "scale_1", "scale_2", "rot_0", "rot_1", "rot_2", "rot_3"])
+
+
+class _Bad(Exception):
+    pass
+
+
+def _parse_header(fh) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]], int]:
+    first = fh.readline(64)
+    if first.rstrip(b"\r\n") != b"ply":
+        raise _Bad("not a PLY file (first line is not 'ply')")
+    fmt = None
+    elements: list[tuple[str, int, list[tuple[str, str]]]] = []
+    total = len(first)
+    while True:
+        line = fh.readline(4096)
+        total += len(line)
+        if not line:
+            raise _Bad("truncated: the header has no end_header line")
+        if total > MAX_HEADER_BYTES:
+            raise _Bad("header is longer than 1 MiB")
+        try:
+            words = line.decode("ascii").split()
+        except UnicodeDecodeError:
+            raise _Bad("header has non-ASCII bytes") from None
+        if not words or words[0] in ("comment", "obj_info"):
+            continue
+        if words[0] == "end_header":
+            break
+        if words[0] == "format":
+            if len(words) != 3 or words[1] not in ("binary_little_endian", "binary_big_endian", "ascii"):
+                raise _Bad(f"unsupported format line {' '.join(words)!r}")
+            fmt = words[1]
+        elif words[0] == "element":
+            if len(words) != 3 or not re.fullmatch(r"\d{1,10}", words[2]):
+                raise _Bad(f"malformed element line {' '.join(words)!r}")
+            elements.append((words[1], int(words[2]), []))
+        elif words[0] == "property":
+            if not elements:
+                raise _Bad("property before any element")
+            if words[1] == "list":
+                elements[-1][2].append((words[-1], "list"))
+            elif len(words) == 3 and words[1] in _PLY_TYPES:
+                elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
+            else:
+                raise _Bad(f"malformed property line {' '.join(words)!r}")
+        else:
+            raise _Bad(f"unknown header line {' '.join(words)!r}")
+    if fmt is None:
+        raise _Bad("header has no format line")
+    return fmt, elements, total
+
+
+def read_ply(path: str | Path) -> GaussianCloud:
+    """Read a 3DGS `.ply` as a static cloud (no features, no dynamics); AvatarFileError on bad input."""
+    path = Path(path)
+    try:
+        return _read_ply(path)
+    except _Bad as e:
+        raise AvatarFileError(path, str(e)) from None
+    except FileNotFoundError:
+        raise AvatarFileError(path, "no such file") from None
+    except OSError as e:
+        raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None
+
+
+def _read_ply(path: Path) -> GaussianCloud:
+    size = path.stat().st_size
+    if size == 0:
+        raise _Bad("file is empty")
+    with open(path, "rb") as fh:
+        fmt, elements, header_len = _parse_header(fh)
+        if not elements or elements[0][0] != "vertex":
+            raise _Bad("the first element is not 'vertex'")
+        _, n, props = elements[0]
+        if any(t == "list" for _, t in props):
+            raise _Bad("vertex element has list properties; not a 3DGS file")
+        names = [p for p, _ in props]
+        if len(set(names)) != len(names):
+            raise _Bad("vertex element has duplicate property names")
+        if fmt == "ascii":
+            try:
+                rows = np.loadtxt(fh, dtype=np.float64, max_rows=n, ndmin=2)
+            except ValueError as e:
+                raise _Bad(f"malformed ASCII vertex data: {e}") from None
+            if rows.shape[0] != n or (n and rows.shape[1] < len(props)):
+                raise _Bad(f"truncated: {rows.shape[0]} of {n} vertex rows")
+            cols = {name: rows[:, i] for i, name in enumerate(names)}
+        else:
+            end = "<" if fmt == "binary_little_endian" else ">"
+            dt = np.dtype([(p, end + t) for p, t in props])
+            need = header_len + n * dt.itemsize
+            if size < need:
+                raise _Bad(f"truncated: {n} vertices need {need} bytes, the file has {size}")
+            data = np.fromfile(fh, dtype=dt, count=n)
+            cols = {name: data[name] for name in names}
+    missing = [f for f in standard_fields(0) if f not in cols and f not in ("nx", "ny", "nz")]
+    if missing:
+        raise _Bad(f"missing 3DGS vertex properties: {', '.join(missing)}")
+    n_rest = sum(1 for p in names if p.startswith("f_rest_"))
+    k = 1 + n_rest // 3
+    if n_rest % 3 or k not in (1, 4, 9, 16):
+        raise _Bad(f"{n_rest} f_rest properties do not match an SH degree 0..3 (expect 0, 9, 24 or 45)")
+    absent = [f"f_rest_{i}" for i in range(n_rest) if f"f_rest_{i}" not in cols]
+    if absent:
+        raise _Bad(f"f_rest properties are not numbered 0..{n_rest - 1} (missing {absent[0]})")
+
+    def stack(keys: list[str]) -> np.ndarray:
+        return np.stack([np.asarray(cols[k], dtype=np.float32) for k in keys], axis=1) if keys else \
+            np.zeros((n, 0), np.float32)
+
+    sh = np.zeros((n, k, 3), np.float32)
+    sh[:, 0, :] = stack(["f_dc_0", "f_dc_1", "f_dc_2"])
+    if k > 1:
+        rest = stack([f"f_rest_{i}" for i in range(n_rest)]).reshape(n, 3, k - 1)
+        sh[:, 1:, :] = rest.transpose(0, 2, 1)
+    cloud = GaussianCloud(
+        means=stack(["x", "y", "z"]),
+        quats=stack(["rot_0", "rot_1", "rot_2", "rot_3"]),
+        log_scales=stack(["scale_0", "scale_1", "scale_2"]),
+        opacity_logits=np.asarray(cols["opacity"], dtype=np.float32).copy(),
+        sh=sh,
+        features=np.zeros((n, 0), np.float32),
+    )
+    for name in ("means", "quats", "log_scales", "opacity_logits", "sh"):
+        a = getattr(cloud, name)
+        if not np.isfinite(a).all():
+            raise _Bad(f"{name} has {int(a.size - np.isfinite(a).sum())} NaN/Inf values")
+    if n and (np.einsum("ij,ij->i", cloud.quats, cloud.quats) < 1e-16).any():
+        raise _Bad("some rotations are zero-length quaternions")
+    return cloud
+
+
+def write_ply(path: str | Path, means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray,
+              opacity_logits: np.ndarray, sh: np.ndarray) -> None:
+    """Write stored-form attributes in the standard 3DGS layout, atomically."""
+    path = Path(path)
+    n, k = sh.shape[0], sh.shape[1]
+    deg = {1: 0, 4: 1, 9: 2, 16: 3}[k]
+    fields = standard_fields(deg)
+    data = np.empty((n, len(fields)), dtype="<f4")
+    data[:, 0:3] = means
+    data[:, 3:6] = 0.0
+    data[:, 6:9] = sh[:, 0, :]
+    o = 9
+    if k > 1:
+        data[:, o : o + 3 * (k - 1)] = np.asarray(sh[:, 1:, :]).transpose(0, 2, 1).reshape(n, -1)
+        o += 3 * (k - 1)
+    data[:, o] = opacity_logits
+    data[:, o + 1 : o + 4] = log_scales
+    data[:, o + 4 : o + 8] = quats
+    header = "ply\nformat binary_little_endian 1.0\n"
+    header += "comment written by npga-view\n"
+    header += f"element vertex {n}\n" + "".join(f"property float {f}\n" for f in fields) + "end_header\n"
+    def write(fh) -> None:
+        fh.write(header.encode("ascii"))
+        fh.write(data.tobytes())
+
+    atomic_write(path, write)
+
+
+def save_ply(cloud: GaussianCloud, path: str | Path) -> None:
+    """Export a cloud's canonical Gaussians as a standard 3DGS PLY (features and latent are not kept)."""
+    write_ply(path, cloud.means, cloud.quats, cloud.log_scales, cloud.opacity_logits, cloud.sh)
+
+
+def save_posed_ply(posed: PosedGaussians, path: str | Path) -> None:
+    """Export posed (activated) Gaussians as a standard 3DGS PLY."""
+    write_ply(path, posed.means, posed.quats, np.log(np.maximum(posed.scales, 1e-30)), logit(posed.opacities),
+              posed.sh)

@@ -1,0 +1,123 @@
+"""`Avatar`: canonical cloud + dynamics + optional CNN + expression space (loading lives in `npga_core.files`)."""
+
+from __future__ import annotations
+
+import hashlib
+import time
+from dataclasses import dataclass, field
+
+import numpy as np
+import torch
+
+from npga_core.model.cnn import ScreenCNN
+from npga_core.model.dynamics import Dynamics, Offsets, apply_offsets, cloud_tensors, to_posed_gaussians
+from npga_core.model.expression import ExpressionSpace
+from npga_core.model.gaussians import GaussianCloud, PosedGaussians
+
+
+@dataclass
+class Avatar:
+    """An NPGA avatar. A static scene (e.g. from a PLY) has no dynamics and code_dim 0."""
+
+    cloud: GaussianCloud
+    dynamics: Dynamics | None = None
+    cnn: ScreenCNN | None = None
+    expression: ExpressionSpace | None = None
+    provenance: dict = field(default_factory=dict)
+    units: str = "m"
+    source: str | None = None  # path it was loaded from, if any
+    version: int = field(default=0, init=False, repr=False)  # incremented by every `invalidate_caches`
+    _first_layer: dict[str, torch.Tensor] = field(default_factory=dict, init=False, repr=False)
+    _canonical: dict | None = field(default=None, init=False, repr=False)
+    _content_key: str | None = field(default=None, init=False, repr=False)
+
+    @property
+    def code_dim(self) -> int:
+        return 0 if self.dynamics is None else self.dynamics.code_dim
+
+    def __len__(self) -> int:
+        return len(self.cloud)
+
+    def neutral_code(self) -> np.ndarray:
+        """The mean code of the expression space (zeros without one)."""
+        if self.expression is not None:
+            return self.expression.mean.copy()
+        return np.zeros(self.code_dim, np.float32)
+
+    def check_code(self, z: np.ndarray) -> np.ndarray:
+        """A float32 (D,) code, or ValueError naming both dimensions."""
+        z = np.asarray(z, dtype=np.float32).reshape(-1)
+        if z.shape[0] != self.code_dim:
+            raise ValueError(f"expression code has {z.shape[0]} dims, the avatar expects {self.code_dim}")
+        if not np.all(np.isfinite(z)):
+            raise ValueError("expression code has NaN or Inf values")
+        return z
+
+    def invalidate_caches(self) -> None:
+        """Drop cached per-Gaussian terms (call after editing the cloud or the networks); bumps `version`."""
+        self._first_layer.clear()
+        self._canonical = None
+        self._content_key = None
+        self.version += 1
+
+    def content_key(self) -> str:
+        """Hex hash of everything posing depends on: cloud arrays, network weights, rotation op (cached per
+        `version`). Derived caches (preview model, baked sequences) are keyed by it."""
+        if self._content_key is None:
+            h = hashlib.blake2b(digest_size=20)
+            arrays = sorted(self.cloud.arrays().items())
+            if self.dynamics is not None:
+                h.update(self.dynamics.rotation_op.encode())
+                arrays += [(k, t.detach().cpu().numpy()) for k, t in sorted(self.dynamics.state_dict().items())]
+            for name, arr in arrays:
+                a = np.ascontiguousarray(arr)
+                h.update(f"{name}{a.dtype.str}{a.shape}".encode())
+                h.update(a.reshape(-1).view(np.uint8))
+            self._content_key = h.hexdigest()
+        return self._content_key
+
+    def _tensors(self) -> dict:
+        if self._canonical is None:
+            self._canonical = cloud_tensors(self.cloud)
+        return self._canonical
+
+    @torch.no_grad()
+    def offsets(self, z: np.ndarray, chunk: int = 2048, timings: dict[str, float] | None = None) -> Offsets:
+        """Offsets at code z by the fast path (first layer's per-Gaussian part cached).
+
+        If `timings` is given, the milliseconds spent in each network are stored under "F" and "G".
+        """
+        if self.dynamics is None:
+            raise ValueError("this avatar has no dynamics")
+        zt = torch.from_numpy(self.check_code(z))
+        t = self._tensors()
+        outs = {}
+        for key, net in self.dynamics.networks().items():
+            if key not in self._first_layer:
+                self._first_layer[key] = net.precompute(t["means"], t["features"])
+            gi = (t["means"], t["features"]) if net.config.skips else None
+            t0 = time.perf_counter()
+            outs[key] = net.evaluate(self._first_layer[key], zt, chunk=chunk, gaussian_inputs=gi)
+            if timings is not None:
+                timings[key] = (time.perf_counter() - t0) * 1000.0
+        g = self.dynamics.G.split(outs["G"]) if "G" in outs else {}
+        return Offsets(outs.get("F"), g)
+
+    @torch.no_grad()
+    def offsets_reference(self, z: np.ndarray) -> Offsets:
+        """Offsets by the plain forward passes (slow; the definition the fast path is tested against)."""
+        if self.dynamics is None:
+            raise ValueError("this avatar has no dynamics")
+        t = self._tensors()
+        return self.dynamics.offsets(t["means"], t["features"], torch.from_numpy(self.check_code(z)))
+
+    @torch.no_grad()
+    def pose(self, z: np.ndarray | None = None, reference: bool = False,
+             timings: dict[str, float] | None = None) -> PosedGaussians:
+        """Posed, activated Gaussians at code z (None: the mean code; static avatars ignore z)."""
+        if self.dynamics is None:
+            return self.cloud.posed_static()
+        z = self.neutral_code() if z is None else z
+        off = self.offsets_reference(z) if reference else self.offsets(z, timings=timings)
+        posed = apply_offsets(self._tensors(), off, self.dynamics.rotation_op)
+        return to_posed_gaussians(posed)

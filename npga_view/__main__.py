@@ -1,0 +1,7 @@
+"""`python -m npga_view`: the same as the `npga-view` command."""
+
+import sys
+
+from npga_view.cli.main import main
+
+sys.exit(main())

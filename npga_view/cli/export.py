@@ -1,0 +1,81 @@
+"""`npga-view export AVATAR --out posed.ply`: the avatar posed at one expression as a standard 3DGS `.ply`."""
+
+from __future__ import annotations
+
+import argparse
+import sys
+from pathlib import Path
+
+import numpy as np
+
+
+class ExportError(Exception):
+    """A problem with the arguments of `export`, reported as one line with exit code 2."""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("avatar", help="a .npga checkpoint, a 3DGS .ply, or 'demo'")
+    p.add_argument("--out", required=True, type=Path, help="the .ply file to write")
+    p.add_argument("--expr", type=Path, help="expression code .npy, (D,) or (T, D) with --frame choosing the row "
+                   "(default row 0)")
+    p.add_argument("--sequence", type=Path, help="expression sequence (.npzseq/.npz/.npy or a tracking folder); "
+                   "needs --frame")
+    p.add_argument("--frame", type=int, default=None, help="frame of --sequence/--expr")
+    p.add_argument("--head-pose", choices=("off", "relative", "absolute"), default="off",
+                   help="move the Gaussians by the --sequence frame's tracked head pose, relative to its first "
+                   "frame or as tracked (into the tracking's world); SH turn with the head. Default off")
+
+
+def expression_code(args: argparse.Namespace, avatar) -> tuple[np.ndarray | None, np.ndarray | None]:
+    """The code selected by --expr/--sequence/--frame (None: the avatar's mean code), the same rules as
+    `npga-view render` for a single image, and the frame's head transform (4x4) with --head-pose."""
+    from npga_core.files.loading import load_sequence
+    from npga_core.posing.headpose import head_transforms
+
+    if args.sequence is not None and args.expr is not None:
+        raise ExportError("give either --expr or --sequence, not both")
+    source = args.sequence or args.expr
+    if args.head_pose != "off" and args.sequence is None:
+        raise ExportError("--head-pose needs --sequence")
+    if source is None:
+        if args.frame is not None:
+            raise ExportError("--frame needs --sequence or --expr")
+        return None, None
+    if args.sequence is not None and args.frame is None:
+        raise ExportError("--sequence needs --frame K to choose the expression")
+    if avatar.code_dim == 0:
+        raise ExportError(f"{source}: the avatar is static (no dynamics), it takes no expression codes")
+    seq = load_sequence(source)
+    seq.check_dim(avatar.code_dim, source)
+    frame = 0 if args.frame is None else args.frame
+    if not 0 <= frame < len(seq):
+        raise ExportError(f"--frame {frame}: {source} has frames 0..{len(seq) - 1}")
+    transform = None if args.head_pose == "off" else head_transforms(seq, [frame], args.head_pose, source)[0]
+    return seq.codes[frame], transform
+
+
+def run(args: argparse.Namespace) -> int:
+    """Write the posed `.ply`; argument problems print one line and return 2, file problems raise
+    AvatarFileError (cli.main prints it and exits 2)."""
+    from npga_core.files.loading import load_avatar
+    from npga_core.files.ply import save_posed_ply
+
+    out: Path = args.out
+    try:
+        if out.suffix.lower() != ".ply":
+            raise ExportError(f"--out {out}: the output must be a .ply file")
+        if not out.parent.is_dir():
+            raise ExportError(f"--out {out}: folder {out.parent} does not exist")
+        avatar = load_avatar(args.avatar)
+        code, transform = expression_code(args, avatar)
+    except (ExportError, ValueError) as e:
+        print(f"npga-view export: error: {' '.join(str(e).split())}", file=sys.stderr)
+        return 2
+    posed = avatar.pose(code)
+    if transform is not None:
+        from npga_core.posing.headpose import transform_posed
+
+        posed = transform_posed(posed, transform)
+    save_posed_ply(posed, out)
+    print(f"wrote {len(posed):,} Gaussians to {out}")
+    return 0

@@ -1,0 +1,157 @@
+"""`PoseController`: which expression the window shows, and keeping the pose worker asked for it.
+
+Every frame the controller picks the target code (the sequence frame on the clock, a keyframe, or the
+sliders), asks the worker for it when it changed (a preview first and then the exact pose for slider moves,
+exact poses or baked frames for playback), and takes what the worker answered: the posed cloud goes to the
+host's `show`, and the frame bookkeeping tells playback which frame is on screen.
+"""
+
+from __future__ import annotations
+
+import time
+from collections.abc import Callable
+
+import numpy as np
+
+from npga_core.model.gaussians import PosedGaussians
+from npga_core.posing.smoothing import jitter, smooth
+from npga_view.controllers.host import ViewerHost
+
+
+class PoseController:
+    """Owned by the app; `update(dt)` runs once per UI frame. See the module docstring."""
+
+    def __init__(self, host: ViewerHost, bake_usable: Callable[[], bool],
+                 keyframe_code: Callable[[], np.ndarray | None]):
+        self.host = host
+        self._bake_usable = bake_usable
+        self._keyframe_code = keyframe_code
+        self.codes: np.ndarray | None = None  # the sequence's (smoothed) codes
+        self.smooth_key: tuple | None = None  # what `codes` were smoothed from and how
+        self.first_pose_shown = False
+        self.changed = False  # a new pose arrived this frame (the image must be redrawn)
+        self.reset()
+
+    def reset(self) -> None:
+        """Forget what was asked and shown (a new avatar)."""
+        self.requested: np.ndarray | None = None
+        self.shown_code: np.ndarray | None = None
+        self.shown_frame: int | None = None
+        self.requested_frame: int | None = None
+        self._frame_of_request: dict[int, int | None] = {}  # pending request id -> sequence frame it shows
+
+    def engine_restarted(self) -> None:
+        """A new worker: ask it for the current code again."""
+        self.requested = None
+        self._frame_of_request = {}
+
+    def sequence_closed(self) -> None:
+        self.codes = None
+        self.smooth_key = None
+
+    # ------------------------------------------------------------------------------------------- codes
+    def slider_code(self) -> np.ndarray:
+        """The code the expression sliders describe."""
+        st, ex = self.host.state, self.host.avatar.expression
+        return ex.from_sliders(st.sliders) if st.sliders.size else ex.mean.copy()
+
+    def sequence_codes(self) -> np.ndarray:
+        """The open sequence's codes, smoothed as the Timeline panel says (recomputed when that changes)."""
+        host = self.host
+        tl, seq = host.state.timeline, host.sequence
+        key = (id(seq), tl.smoothing, tl.smooth_alpha, tl.euro_min_cutoff, tl.euro_beta)
+        if key != self.smooth_key:
+            self.codes = smooth(seq.codes, tl.smoothing, seq.fps, tl.smooth_alpha, tl.euro_min_cutoff, tl.euro_beta)
+            host.info.jitter_raw = jitter(seq.codes)
+            host.info.jitter_smoothed = jitter(self.codes)
+            self.smooth_key = key
+        return self.codes
+
+    def bake_key(self) -> tuple | None:
+        """What a bake of the timeline would be of (sequence and smoothing), None without a sequence."""
+        if self.host.sequence is None:
+            return None
+        self.sequence_codes()
+        return self.smooth_key
+
+    def following(self) -> bool:
+        return self.host.sequence is not None and self.host.state.follow_sequence
+
+    def target_code(self, dt: float) -> np.ndarray | None:
+        """The code to show now; advances the playback clock while a sequence is followed."""
+        host = self.host
+        a = host.avatar
+        if a is None or a.dynamics is None:
+            return None
+        if self.following():
+            codes = self.sequence_codes()
+            shown = self.shown_frame == self.requested_frame
+            frame = host.playback.advance(host.state.timeline, dt, shown)
+            host.info.frame = frame
+            self.requested_frame = frame
+            return codes[frame]
+        kf = self._keyframe_code()
+        if kf is not None:
+            return kf
+        if a.expression is None:
+            return a.neutral_code()
+        return self.slider_code()
+
+    # ----------------------------------------------------------------------------------------- per frame
+    def update(self, dt: float) -> None:
+        """Ask the worker for the target code if it changed, and take its answer."""
+        host = self.host
+        code = self.target_code(dt)
+        eng = host.engine
+        self.changed = False
+        if eng is None:
+            return
+        following = self.following()
+        if code is not None and (self.requested is None or not np.array_equal(code, self.requested)):
+            if following and self._bake_usable():
+                req = eng.request_frame(self.requested_frame)
+            else:  # sliders: a fast preview first, then the exact pose; live playback: exact poses only
+                req = eng.request(code, mode="exact" if following else "auto")
+            self.requested = code.copy()
+            self._frame_of_request[req] = self.requested_frame if following else None
+        elif following and code is not None and self.shown_frame != self.requested_frame \
+                and eng.pending is None and self.shown_code is not None and np.array_equal(code, self.shown_code):
+            # a frame with the code already on screen (a held expression): it is shown as it is, and the head
+            # pose of the new frame applies
+            self.shown_frame = self.requested_frame
+            host.playback.shown(self.shown_frame, time.perf_counter(), host.state.timeline.playing)
+        self._take(eng.poll())
+        if eng.last_error:
+            host.state.report(eng.last_error)
+            eng.last_error = None
+        info = host.info
+        info.posing = eng.pending is not None
+        info.engine_status = eng.status
+        if host.playback is not None:
+            info.achieved_fps = host.playback.achieved_fps()
+            info.skipped = host.playback.skipped
+
+    def _take(self, result) -> None:
+        """Show a worker answer (a preview, an exact pose or a baked frame) and do its frame bookkeeping."""
+        if result is None:
+            return
+        host, info = self.host, self.host.info
+        if len(result.posed) == len(host.avatar):
+            p = result.posed
+            self.shown_code = result.code
+            host.show(PosedGaussians(p.means.copy(), p.quats.copy(), p.scales.copy(), p.opacities.copy(),
+                                     p.sh.copy(), None if p.latent is None else p.latent.copy()))
+        result.release()
+        info.timings.update({k: v for k, v in result.timings.items() if k in ("F", "G")})
+        self.shown_code = result.code
+        info.preview = bool(result.preview) and not result.baked
+        info.baked, info.interpolated = result.baked, result.baked and result.preview
+        if info.preview:  # the exact pose of this request follows: keep its frame bookkeeping
+            return
+        frame = self._frame_of_request.get(result.request_id)
+        self._frame_of_request = {k: v for k, v in self._frame_of_request.items() if k > result.request_id}
+        if frame is not None and host.playback is not None:
+            self.shown_frame = frame
+            host.playback.shown(frame, time.perf_counter(), host.state.timeline.playing)
+        self.first_pose_shown = True
+        self.changed = True

@@ -1,0 +1,518 @@
+"""`SplatRenderer`: rasterises posed 3D Gaussians with OpenGL 4.3, matching the 3DGS reference rasterizer.
+
+Pipeline per frame (see shaders/):
+
+1. sort (CPU, `sorting.py`): camera-space depth of every Gaussian centre, culled at the near plane, O(N)
+   radix sort far to near (exact float order by default); the order (uint32, 4 bytes per Gaussian) is
+   uploaded.
+2. pre-pass (compute shader, once per camera): EWA projection as 3DGS `computeCov2D` (Jacobian with
+   t.x/t.z, t.y/t.z clamped to 1.3 tan(fov/2), +0.3 px on the covariance diagonal), SH colour as
+   `computeColorFromSH`, and a quad along the covariance eigenvectors reaching the radius where
+   alpha = 1/255 (at most 3.33 sigma; fragments beyond it are discarded by the 3DGS rule anyway).
+3. draw: one instanced quad per Gaussian in sorted order; the fragment shader evaluates
+   alpha = min(0.99, o exp(-d^T S^-1 d / 2)) at d = gl_FragCoord - centre with the 2D conic, exactly as
+   renderCUDA, discards it below 1/255, and blends premultiplied "over" into an RGBA32F target.
+
+The result is C = sum_i c_i a_i T_i and A = 1 - prod_i (1 - a_i); `render` composites C + (1 - A) bg.
+
+Difference to 3DGS: its front-to-back loop stops a pixel at the first Gaussian that would bring the
+transmittance below 1e-4 and skips that Gaussian and all behind it; blending cannot stop, so here they are
+composited. The difference per pixel is at most T_stop * max|feature - background| with
+T_stop < 1e-4 / (1 - alpha) <= 1e-2, i.e. up to 1 % where a pixel saturates with alpha-0.99 splats, and far
+less otherwise (the PSNR tests against tests/reference_rasterizer.py include it).
+Pixels of 3DGS outside a Gaussian's 16x16-tile bounding rectangle also see no contribution there, while here
+every pixel with alpha >= 1/255 does; this touches only alphas within [1/255, ~1/90] at the 3-sigma edge.
+
+Camera-only changes re-sort, re-run the pre-pass and redraw; the Gaussian attributes are uploaded only by
+`set_gaussians`.
+
+Inspection (see npga_core/inspect.py for the colour modes, which only replace the uploaded SH):
+
+- `style`: "splats" (the above), "points" (opaque discs of `point_px` radius) or "ellipsoids" (the 1-sigma
+  ellipse of the projected covariance, opaque and shaded); the two geometry styles skip Gaussians with opacity
+  below `style_min_opacity`. The "splats" output is unchanged by this.
+- `drawn_count` / `drawn_mask()`: Gaussians the pre-pass keeps (in front of the near plane, opacity >= 1/255, a
+  non-degenerate covariance, quad overlapping the viewport), counted with an atomic counter in the pre-pass.
+- `pick(camera, x, y)` / `render_ids(camera)`: an id pass over the same sorted quads into an R32UI target,
+  without blending, so a pixel keeps the front-most Gaussian whose alpha there reaches a threshold.
+- `set_lines(positions, edges, colours)`: segments (kNN edges) drawn over the splats in "rgb" mode
+  (`npga_view/lines.py`).
+"""
+
+from __future__ import annotations
+
+import re
+import time
+from pathlib import Path
+from typing import TYPE_CHECKING
+
+import moderngl
+import numpy as np
+
+from npga_core.camera.cameras import Camera
+from npga_core.model.gaussians import PosedGaussians, sh_degree_from_count
+from npga_view.rendering.lines import LinePass
+from npga_view.rendering.sorting import sort_back_to_front, view_depths
+
+if TYPE_CHECKING:
+    from npga_core.inspection.inspector import InspectFrame
+
+SHADER_DIR = Path(__file__).resolve().parents[2] / "shaders"
+NEAR = 0.01
+_GROUP = 128
+_INCLUDE = re.compile(r'^#include\s+"([^"]+)"\s*$', re.MULTILINE)
+MODES = ("rgb", "depth", "alpha")
+STYLES = ("splats", "points", "ellipsoids")
+PICK_THRESHOLD = 0.2  # alpha a Gaussian must reach at a pixel to be picked there
+
+
+def load_shader(name: str, defines: dict[str, object] | None = None) -> str:
+    """GLSL source of shaders/`name` with `#include "file"` resolved and `defines` added after `#version`."""
+    source = (SHADER_DIR / name).read_text()
+    source = _INCLUDE.sub(lambda m: (SHADER_DIR / m.group(1)).read_text(), source)
+    if defines:
+        lines = source.split("\n", 1)
+        extra = "".join(f"#define {k} {v}\n" for k, v in defines.items())
+        source = lines[0] + "\n" + extra + (lines[1] if len(lines) > 1 else "")
+    return source
+
+
+def _mat4_uniform(m: np.ndarray) -> bytes:
+    """Column-major float32 bytes of a row-major 4x4 matrix, as GLSL mat4 uniforms expect."""
+    return np.ascontiguousarray(np.asarray(m, dtype=np.float32).T).tobytes()
+
+
+class SplatRenderer:
+    """Draws a `PosedGaussians` cloud from any `Camera` into float framebuffers.
+
+    `ctx` must be an OpenGL >= 4.3 moderngl context (`npga_view.rendering.gl`). `width`, `height` is the size of the
+    internal framebuffer; cameras of another size are rendered at their own size (the targets are resized).
+    `exact_sort` sorts by the exact float32 depth (two 16-bit radix passes, the order 3DGS uses); False uses
+    one pass over 16-bit quantised depths (about 2x faster; near-equal depths may swap).
+    """
+
+    def __init__(self, ctx: moderngl.Context, width: int, height: int, exact_sort: bool = True) -> None:
+        self.ctx = ctx
+        self.exact_sort = exact_sort
+        self._activate()
+        self.max_targets = min(8, int(ctx.info["GL_MAX_DRAW_BUFFERS"]))
+        self.max_ssbo_bytes = int(ctx.info["GL_MAX_SHADER_STORAGE_BLOCK_SIZE"])
+        self._preprocess = ctx.compute_shader(load_shader("splat_preprocess.comp"))
+        self._splat_prog = ctx.program(vertex_shader=load_shader("splat.vert"),
+                                       fragment_shader=load_shader("splat.frag"))
+        self._splat_vao = ctx.vertex_array(self._splat_prog, [])
+        self._id_prog = ctx.program(vertex_shader=load_shader("splat.vert"),
+                                    fragment_shader=load_shader("splat_id.frag"))
+        self._id_vao = ctx.vertex_array(self._id_prog, [])
+        self._id_target: tuple[moderngl.Texture, moderngl.Framebuffer] | None = None
+        self._lines: LinePass | None = None
+        #: draw style: "splats", "points" or "ellipsoids" (see the module docstring)
+        self.style = "splats"
+        self.point_px = 2.0
+        self.style_min_opacity = 0.05
+        self._latent_progs: dict[int, tuple[moderngl.Program, moderngl.VertexArray]] = {}
+        self._composite_prog = ctx.program(vertex_shader=load_shader("fullscreen.vert"),
+                                           fragment_shader=load_shader("composite.frag"))
+        self._composite_vao = ctx.vertex_array(self._composite_prog, [])
+        self._count = 0
+        self._means: np.ndarray | None = None
+        self._latent_dim = 0
+        self._buffers: dict[str, moderngl.Buffer] = {}
+        self._sh_coeffs = 1
+        self._pending_upload_ms = 0.0
+        self._size = (0, 0)
+        self._colour_tex: moderngl.Texture | None = None
+        self._fbo: moderngl.Framebuffer | None = None
+        self._latent_fbo: tuple[int, moderngl.Framebuffer, list[moderngl.Texture]] | None = None
+        self._prepared: tuple | None = None  # (camera key, flip) of the current splat buffer + order
+        self._visible = 0
+        self.attribute_uploads = 0  # number of set_gaussians calls (camera moves must not add to it)
+        #: glFinish after each stage so that `last_timings` measures GPU work; turn off in an interactive loop
+        #: on a real GPU to let the stages overlap (the timings then only measure submission).
+        self.sync_timings = True
+        self.last_timings: dict[str, float] = {}
+        self._resize(width, height)
+
+    # --- resources -----------------------------------------------------------------------------
+    def _activate(self) -> None:
+        """Make this renderer's context current: with several contexts in one process (a window and a
+        headless one, or tests) moderngl does not switch by itself, and GL calls would reach the wrong one."""
+        self.ctx.__enter__()
+
+    def _resize(self, width: int, height: int) -> None:
+        if (width, height) == self._size:
+            return
+        self._release_targets()
+        self._size = (width, height)
+        self._colour_tex = self.ctx.texture((width, height), 4, dtype="f4")
+        self._colour_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self._fbo = self.ctx.framebuffer([self._colour_tex])
+
+    def _release_targets(self) -> None:
+        for obj in (self._fbo, self._colour_tex):
+            if obj is not None:
+                obj.release()
+        if self._latent_fbo is not None:
+            _, fbo, textures = self._latent_fbo
+            fbo.release()
+            for t in textures:
+                t.release()
+        if self._id_target is not None:
+            for obj in reversed(self._id_target):
+                obj.release()
+        self._fbo = self._colour_tex = self._latent_fbo = self._id_target = None
+
+    def _buffer(self, name: str, data: np.ndarray | None = None, size: int = 0) -> moderngl.Buffer:
+        """(Re)allocate the named buffer when it is too small, then write the C-contiguous `data` if given."""
+        nbytes = max(data.nbytes if data is not None else size, 16)
+        if nbytes > self.max_ssbo_bytes:
+            raise ValueError(f"{name} needs {nbytes / 2**20:.0f} MiB, over this GL's shader storage block limit "
+                             f"of {self.max_ssbo_bytes / 2**20:.0f} MiB")
+        buf = self._buffers.get(name)
+        if buf is None or buf.size < nbytes:
+            if buf is not None:
+                buf.release()
+            buf = self.ctx.buffer(reserve=nbytes, dynamic=True)
+            self._buffers[name] = buf
+        if data is not None and data.nbytes:
+            buf.write(np.ascontiguousarray(data))
+        return buf
+
+    def release(self) -> None:
+        """Free all GL objects of this renderer."""
+        self._activate()
+        self._release_targets()
+        for buf in self._buffers.values():
+            buf.release()
+        self._buffers.clear()
+        for prog, vao in self._latent_progs.values():
+            vao.release()
+            prog.release()
+        self._latent_progs.clear()
+        if self._lines is not None:
+            self._lines.release()
+            self._lines = None
+        for obj in (self._splat_vao, self._splat_prog, self._id_vao, self._id_prog, self._composite_vao,
+                    self._composite_prog, self._preprocess):
+            obj.release()
+
+    # --- data ----------------------------------------------------------------------------------
+    @property
+    def count(self) -> int:
+        """Number of Gaussians uploaded."""
+        return self._count
+
+    @property
+    def latent_dim(self) -> int:
+        """Number of latent channels uploaded (0 if none)."""
+        return self._latent_dim
+
+    def set_gaussians(self, posed: PosedGaussians) -> None:
+        """Upload a posed cloud (all attributes). Call again whenever the expression changes."""
+        self._activate()
+        t0 = time.perf_counter()
+        n = len(posed)
+        means = np.array(posed.means, dtype=np.float32, copy=True).reshape(n, 3)  # the caller may reuse its arrays
+        geometry = np.zeros((n, 3, 4), dtype=np.float32)
+        geometry[:, 0, :3] = means
+        geometry[:, 0, 3] = np.asarray(posed.opacities, dtype=np.float32).reshape(n)
+        geometry[:, 1] = np.asarray(posed.quats, dtype=np.float32).reshape(n, 4)
+        geometry[:, 2, :3] = np.asarray(posed.scales, dtype=np.float32).reshape(n, 3)
+        sh = np.ascontiguousarray(posed.sh, dtype=np.float32)
+        if sh.ndim != 3 or sh.shape[0] != n or sh.shape[2] != 3:
+            raise ValueError(f"sh must be (N, K, 3) with N={n}, got {sh.shape}")
+        sh_degree_from_count(sh.shape[1])  # raises for K that is not (degree + 1)^2
+        self._sh_coeffs = sh.shape[1]
+        self._buffer("geometry", geometry)
+        self._buffer("sh", sh)
+        self._buffer("splats", size=n * 64)
+        self._buffer("order", size=n * 4)
+        self._buffer("counter", size=4)
+        if posed.latent is not None:
+            latent = np.ascontiguousarray(posed.latent, dtype=np.float32).reshape(n, -1)
+            self._latent_dim = latent.shape[1]
+            self._buffer("latent", latent)
+        else:
+            self._latent_dim = 0
+        self._means = means
+        self._count = n
+        self._prepared = None
+        self.attribute_uploads += 1
+        self._pending_upload_ms += (time.perf_counter() - t0) * 1e3
+
+    # --- per-camera work -----------------------------------------------------------------------
+    def _prepare(self, camera: Camera, flip_y: bool) -> None:
+        """Sort and run the pre-pass for `camera` (skipped when camera and data are unchanged)."""
+        key = (camera.world_to_camera.tobytes(), camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
+               camera.height, flip_y)
+        timings = {"sort": 0.0, "upload": self._pending_upload_ms, "preprocess": 0.0}
+        self._pending_upload_ms = 0.0
+        if self._prepared == key:
+            self.last_timings.update(timings)
+            return
+        t0 = time.perf_counter()
+        z = view_depths(self._means, camera.world_to_camera)
+        order = sort_back_to_front(z, NEAR, exact=self.exact_sort)
+        t1 = time.perf_counter()
+        self._buffers["order"].write(order)
+        self._visible = int(order.shape[0])
+        t2 = time.perf_counter()
+        prog = self._preprocess
+        prog["u_view"].write(_mat4_uniform(camera.world_to_camera))
+        prog["u_proj"].write(_mat4_uniform(camera.opengl_projection(NEAR, 1000.0, flip_y)))
+        prog["u_viewport"].value = (float(camera.width), float(camera.height))
+        prog["u_focal"].value = (camera.fx, camera.fy)
+        prog["u_tan_fov"].value = (camera.tan_half_fov_x, camera.tan_half_fov_y)
+        prog["u_campos"].value = tuple(float(v) for v in camera.camera_center)
+        prog["u_near"].value = NEAR
+        prog["u_count"].value = self._count
+        prog["u_sh_coeffs"].value = self._sh_coeffs
+        self._buffers["geometry"].bind_to_storage_buffer(0)
+        self._buffers["sh"].bind_to_storage_buffer(1)
+        self._buffers["splats"].bind_to_storage_buffer(2)
+        self._buffers["counter"].write(np.zeros(1, np.uint32))
+        self._buffers["counter"].bind_to_storage_buffer(5)
+        prog.run(group_x=(self._count + _GROUP - 1) // _GROUP)
+        self.ctx.memory_barrier()
+        if self.sync_timings:
+            self.ctx.finish()
+        t3 = time.perf_counter()
+        timings.update(sort=(t1 - t0) * 1e3, upload=timings["upload"] + (t2 - t1) * 1e3, preprocess=(t3 - t2) * 1e3)
+        self.last_timings.update(timings)
+        self._prepared = key
+
+    def _begin_pass(self, fbo: moderngl.Framebuffer, viewport: tuple[int, int, int, int]) -> None:
+        fbo.use()
+        self.ctx.viewport = viewport
+        self.ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        self.ctx.enable(moderngl.BLEND)
+        self.ctx.blend_func = moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA
+        self.ctx.blend_equation = moderngl.FUNC_ADD
+
+    # --- drawing -------------------------------------------------------------------------------
+    def draw(self, camera: Camera, mode: str = "rgb", framebuffer: moderngl.Framebuffer | None = None,
+             flip_y: bool = False, clear: tuple[float, float, float, float] | None = (0.0, 0.0, 0.0, 0.0)) -> None:
+        """Splat into `framebuffer` (default: the internal RGBA32F target), premultiplied, without readback.
+
+        mode "rgb" or "alpha" composites colours, "depth" camera-space z. `flip_y` renders upright for a
+        window (row 0 at the bottom). Clearing with (bg, 1) instead of zeros composites over a background
+        directly (then alpha is lost). Timings go to `last_timings` (ms: sort, upload, preprocess, draw).
+        """
+        if mode not in MODES:
+            raise ValueError(f"unknown render mode {mode!r}; choose from {', '.join(MODES)} (or render_latent)")
+        self._activate()
+        if framebuffer is None:
+            self._resize(camera.width, camera.height)
+            framebuffer = self._fbo
+        viewport = (0, 0, camera.width, camera.height)
+        self.last_timings = {}
+        if self._count:
+            self._prepare(camera, flip_y)
+        t0 = time.perf_counter()
+        self._begin_pass(framebuffer, viewport)
+        if clear is not None:
+            framebuffer.clear(*clear, viewport=viewport)
+        if self._count and self._visible:
+            self._set_style(self._splat_prog, camera)
+            self._splat_prog["u_mode"].value = 1 if mode == "depth" else 0
+            self._buffers["splats"].bind_to_storage_buffer(2)
+            self._buffers["order"].bind_to_storage_buffer(3)
+            self._splat_vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._visible)
+        if mode == "rgb" and self._lines is not None and self._lines.edge_count:
+            self._lines.draw(camera, flip_y, NEAR)
+        if self.sync_timings:
+            self.ctx.finish()
+        self.last_timings["draw"] = (time.perf_counter() - t0) * 1e3
+        self.last_timings["visible"] = float(self._visible if self._count else 0)
+
+    def _set_style(self, prog: moderngl.Program, camera: Camera) -> None:
+        if self.style not in STYLES:
+            raise ValueError(f"unknown style {self.style!r}; choose from {', '.join(STYLES)}")
+        prog["u_viewport"].value = (float(camera.width), float(camera.height))
+        prog["u_style"].value = STYLES.index(self.style)
+        prog["u_point_px"].value = float(self.point_px)
+        prog["u_min_opacity"].value = float(self.style_min_opacity)
+
+    def _read(self, fbo: moderngl.Framebuffer, attachment: int, width: int, height: int) -> np.ndarray:
+        data = fbo.read(viewport=(0, 0, width, height), components=4, dtype="f4", attachment=attachment)
+        return np.frombuffer(data, dtype=np.float32).reshape(height, width, 4)
+
+    def render(self, camera: Camera, background=(0.0, 0.0, 0.0), mode: str = "rgb") -> np.ndarray:
+        """Render and read back: rgb (H,W,3) C + (1-A) bg, depth (H,W) sum_i w_i z_i, or alpha (H,W) A.
+
+        Rows go top to bottom (OpenCV image order). Depth is the alpha-weighted expected depth, not
+        normalised by alpha (divide by the alpha image for the depth of the visible surface).
+        """
+        self.draw(camera, mode)
+        t0 = time.perf_counter()
+        image = self._read(self._fbo, 0, camera.width, camera.height)
+        if mode == "rgb":
+            bg = np.asarray(background, dtype=np.float32).reshape(3)
+            out = image[..., :3] + (1.0 - image[..., 3:4]) * bg
+        elif mode == "depth":
+            out = image[..., 0].copy()
+        else:
+            out = image[..., 3].copy()
+        self.last_timings["readback"] = (time.perf_counter() - t0) * 1e3
+        return out
+
+    def _latent_program(self, targets: int) -> tuple[moderngl.Program, moderngl.VertexArray]:
+        if targets not in self._latent_progs:
+            defines = {"NUM_TARGETS": targets}
+            prog = self.ctx.program(vertex_shader=load_shader("splat_latent.vert", defines),
+                                    fragment_shader=load_shader("splat_latent.frag", defines))
+            self._latent_progs[targets] = (prog, self.ctx.vertex_array(prog, []))
+        return self._latent_progs[targets]
+
+    def _latent_targets(self, width: int, height: int, targets: int) -> tuple[moderngl.Framebuffer, list]:
+        if self._latent_fbo is not None:
+            count, fbo, textures = self._latent_fbo
+            if count == targets and fbo.size == (width, height):
+                return fbo, textures
+            fbo.release()
+            for t in textures:
+                t.release()
+        textures = [self.ctx.texture((width, height), 4, dtype="f4") for _ in range(targets)]
+        fbo = self.ctx.framebuffer(textures)
+        self._latent_fbo = (targets, fbo, textures)
+        return fbo, textures
+
+    def render_latent(self, camera: Camera) -> np.ndarray:
+        """Composite the latent channels like colour: (H, W, Hdim) = sum_i h_i a_i T_i (no background).
+
+        Each RGBA32F target carries three channels plus alpha; up to 8 targets (24 channels) per pass.
+        """
+        if self._latent_dim == 0:
+            raise ValueError("the uploaded Gaussians have no latent features")
+        self._activate()
+        w, h = camera.width, camera.height
+        self.last_timings = {}
+        self._prepare(camera, False)
+        t0 = time.perf_counter()
+        out = np.empty((h, w, self._latent_dim), dtype=np.float32)
+        per_pass = 3 * self.max_targets
+        for first in range(0, self._latent_dim, per_pass):
+            channels = min(per_pass, self._latent_dim - first)
+            targets = (channels + 2) // 3
+            prog, vao = self._latent_program(targets)
+            fbo, _ = self._latent_targets(w, h, targets)
+            self._begin_pass(fbo, (0, 0, w, h))
+            fbo.clear(0.0, 0.0, 0.0, 0.0)
+            if self._visible:
+                prog["u_viewport"].value = (float(w), float(h))
+                prog["u_latent_dim"].value = self._latent_dim
+                prog["u_first_channel"].value = first
+                self._buffers["splats"].bind_to_storage_buffer(2)
+                self._buffers["order"].bind_to_storage_buffer(3)
+                self._buffers["latent"].bind_to_storage_buffer(4)
+                vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._visible)
+            for k in range(targets):
+                lo = first + 3 * k
+                n = min(3, self._latent_dim - lo)
+                out[..., lo:lo + n] = self._read(fbo, k, w, h)[..., :n]
+        self.last_timings["draw"] = (time.perf_counter() - t0) * 1e3
+        return out
+
+    # --- inspection ----------------------------------------------------------------------------
+    @property
+    def drawn_count(self) -> int:
+        """Gaussians kept by the last pre-pass (drawn by the last `draw`/`render` if `style` is "splats")."""
+        if not self._count or self._prepared is None:
+            return 0
+        self._activate()
+        return int(np.frombuffer(self._buffers["counter"].read(size=4), np.uint32)[0])
+
+    def drawn_mask(self) -> np.ndarray:
+        """(N,) bool: which Gaussians the last pre-pass kept (reads the projected splats back)."""
+        if not self._count or self._prepared is None:
+            return np.zeros(self._count, bool)
+        self._activate()
+        data = self._buffers["splats"].read(size=self._count * 64)
+        return np.frombuffer(data, np.float32).reshape(self._count, 16)[:, 3] > 0.0
+
+    def _ids_into(self, camera: Camera, threshold: float, scissor: tuple[int, int, int, int] | None) -> None:
+        w, h = camera.width, camera.height
+        if self._id_target is None or self._id_target[0].size != (w, h):
+            if self._id_target is not None:
+                for obj in reversed(self._id_target):
+                    obj.release()
+            tex = self.ctx.texture((w, h), 1, dtype="u4")
+            self._id_target = (tex, self.ctx.framebuffer([tex]))
+        fbo = self._id_target[1]
+        fbo.use()
+        self.ctx.viewport = (0, 0, w, h)
+        self.ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        fbo.clear(0.0, 0.0, 0.0, 0.0)
+        if not self._count:
+            return
+        self._prepare(camera, False)
+        if not self._visible:
+            return
+        prog = self._id_prog
+        self._set_style(prog, camera)
+        prog["u_threshold"].value = float(threshold)
+        self._buffers["splats"].bind_to_storage_buffer(2)
+        self._buffers["order"].bind_to_storage_buffer(3)
+        fbo.scissor = scissor
+        try:
+            self._id_vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._visible)
+        finally:
+            fbo.scissor = None
+
+    def render_ids(self, camera: Camera, threshold: float = PICK_THRESHOLD) -> np.ndarray:
+        """(H, W) int64: per pixel the front-most Gaussian (by centre depth) whose alpha there, in the current
+        `style`, is at least `threshold`; -1 where there is none. Rows top to bottom."""
+        self._activate()
+        self._ids_into(camera, threshold, None)
+        data = self._id_target[1].read(viewport=(0, 0, camera.width, camera.height), components=1, dtype="u4")
+        return np.frombuffer(data, np.uint32).reshape(camera.height, camera.width).astype(np.int64) - 1
+
+    def pick(self, camera: Camera, x: float, y: float, threshold: float = PICK_THRESHOLD) -> int | None:
+        """The Gaussian at pixel (x, y) (OpenCV: x right, y down, from the image's top-left corner) as
+        `render_ids` defines it, or None; only that pixel is rasterised."""
+        px, py = int(np.floor(x)), int(np.floor(y))
+        if not (0 <= px < camera.width and 0 <= py < camera.height):
+            return None
+        self._activate()
+        self._ids_into(camera, threshold, (px, py, 1, 1))
+        data = self._id_target[1].read(viewport=(px, py, 1, 1), components=1, dtype="u4")
+        value = int(np.frombuffer(data, np.uint32)[0])
+        return value - 1 if value else None
+
+    def show(self, frame: InspectFrame) -> None:
+        """Upload an inspection frame (`Inspector.frame` in npga_core.inspection): Gaussians, style and lines."""
+        self.set_gaussians(frame.posed)
+        self.style, self.point_px = frame.style, frame.point_px
+        if frame.lines is None:
+            self.clear_lines()
+        else:
+            self.set_lines(frame.lines.positions, frame.lines.edges, frame.lines.colours)
+
+    def set_lines(self, positions: np.ndarray, edges: np.ndarray, colours: np.ndarray) -> None:
+        """Segments between rows of `positions` (M, 3), edges (E, 2), colours (E, 3|4), drawn over the splats by
+        `draw` in "rgb" mode until `clear_lines`."""
+        self._activate()
+        if self._lines is None:
+            self._lines = LinePass(self.ctx, load_shader)
+        self._lines.set(positions, edges, colours)
+
+    def clear_lines(self) -> None:
+        if self._lines is not None:
+            self._lines.clear()
+
+    @property
+    def line_count(self) -> int:
+        return 0 if self._lines is None else self._lines.edge_count
+
+    def present(self, framebuffer: moderngl.Framebuffer, background=(0.0, 0.0, 0.0), flip_y: bool = True,
+                viewport: tuple[int, int, int, int] | None = None) -> None:
+        """Composite the last internal `draw` over `background` onto e.g. a window's framebuffer."""
+        self._activate()
+        framebuffer.use()
+        self.ctx.viewport = viewport or (0, 0, *framebuffer.size)
+        self.ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST)
+        self._colour_tex.use(0)
+        self._composite_prog["u_image"].value = 0
+        self._composite_prog["u_background"].value = tuple(float(v) for v in background)
+        self._composite_prog["u_flip_y"].value = 1 if flip_y else 0
+        self._composite_vao.render(moderngl.TRIANGLES, vertices=3)
