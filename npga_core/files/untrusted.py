@@ -1,0 +1,374 @@
+"""One way to read files the project did not write itself: bounded, regular files only, never unpickled.
+
+Every reader of user-given files goes through these helpers (`.npy`, `.npz`, JSON), so one class of hostile
+file is closed everywhere at once:
+
+- only regular files are opened (`regular_file`, `open_regular`): a FIFO, device or socket is refused before
+  it is read, and the open itself does not block (O_NONBLOCK, then the descriptor is checked again);
+- nothing is read without end: every read has a byte budget, and array sizes are checked from the `.npy`
+  header (shape x itemsize) before anything is allocated, per member for `.npz` (with a bounded member count
+  and a total budget);
+- only numeric dtypes (no object, structured or complex arrays; `allow_pickle` is never set), and
+  `real_floats` turns an array into finite float32/float64 values or refuses it;
+- JSON has a size bound and a nesting-depth bound checked by a non-recursive scan before parsing; NaN,
+  Infinity, non-finite floats and absurdly long integers are refused.
+
+Every failure is an `AvatarFileError(path, "one line")`.
+"""
+
+from __future__ import annotations
+
+import io
+import json
+import math
+import os
+import stat
+import zipfile
+from collections.abc import Iterable
+from pathlib import Path
+from typing import IO, Any
+
+import numpy as np
+
+from npga_core.errors import AvatarFileError
+
+#: Largest JSON file read by default (sessions, keyframes, rigs, presets).
+MAX_JSON_BYTES = 16 * 1024 * 1024
+#: Deepest JSON nesting accepted by default.
+MAX_JSON_DEPTH = 64
+#: Most members read from one `.npz`.
+MAX_NPZ_MEMBERS = 256
+#: Largest image side accepted from a camera file (GL limits are checked again where targets are made).
+MAX_IMAGE_SIDE = 16384
+#: Longest integer literal accepted in JSON (digits).
+MAX_INT_DIGITS = 40
+
+_NUMERIC_KINDS = "fiu"
+_NPY_MAX_HEADER = 10000
+
+
+def _kind_name(mode: int) -> str:
+    if stat.S_ISFIFO(mode):
+        return "a FIFO (named pipe)"
+    if stat.S_ISCHR(mode):
+        return "a character device"
+    if stat.S_ISBLK(mode):
+        return "a block device"
+    if stat.S_ISSOCK(mode):
+        return "a socket"
+    return "not a regular file"
+
+
+def _check_mode(path: str | Path, mode: int, what: str) -> None:
+    if stat.S_ISDIR(mode):
+        raise AvatarFileError(path, f"is a directory, not {what}")
+    if not stat.S_ISREG(mode):
+        raise AvatarFileError(path, f"is {_kind_name(mode)}, not a regular file")
+
+
+def regular_file(path: str | Path, what: str = "a file") -> Path:
+    """`path` as a Path if it names an existing regular file (symlinks followed); else AvatarFileError.
+
+    Refuses directories, FIFOs, devices and sockets without opening them.
+    """
+    p = Path(path)
+    try:
+        st = os.stat(p)
+    except (FileNotFoundError, NotADirectoryError):
+        raise AvatarFileError(p, "no such file") from None
+    except PermissionError:
+        raise AvatarFileError(p, "permission denied") from None
+    except (OSError, ValueError) as e:
+        raise AvatarFileError(p, f"cannot open: {getattr(e, 'strerror', None) or e}") from None
+    _check_mode(p, st.st_mode, what)
+    return p
+
+
+def open_regular(path: str | Path, what: str = "a file") -> IO[bytes]:
+    """Open a regular file for binary reading without ever blocking on a FIFO; AvatarFileError otherwise.
+
+    The path is checked with stat first, opened non-blocking where the platform has it, and the open
+    descriptor is checked again (a file swapped for a FIFO in between is still refused).
+    """
+    p = regular_file(path, what)
+    flags = os.O_RDONLY | getattr(os, "O_BINARY", 0) | getattr(os, "O_NONBLOCK", 0)
+    try:
+        fd = os.open(p, flags)
+    except PermissionError:
+        raise AvatarFileError(p, "permission denied") from None
+    except OSError as e:
+        raise AvatarFileError(p, f"cannot open: {e.strerror or e}") from None
+    try:
+        _check_mode(p, os.fstat(fd).st_mode, what)
+        if getattr(os, "O_NONBLOCK", 0):
+            os.set_blocking(fd, True)
+    except BaseException:
+        os.close(fd)
+        raise
+    return os.fdopen(fd, "rb")
+
+
+def file_size(fh: IO[bytes]) -> int | None:
+    """Size in bytes of an open regular file, None for other streams."""
+    try:
+        return os.fstat(fh.fileno()).st_size
+    except (AttributeError, OSError, io.UnsupportedOperation):
+        return None
+
+
+def read_bytes(path: str | Path, max_bytes: int, what: str = "a file") -> bytes:
+    """The whole content of a regular file of at most `max_bytes` bytes."""
+    with open_regular(path, what) as fh:
+        size = file_size(fh)
+        if size is not None and size > max_bytes:
+            raise AvatarFileError(path, f"is {size} bytes, more than the {max_bytes} allowed for {what}")
+        data = fh.read(max_bytes + 1)
+    if len(data) > max_bytes:
+        raise AvatarFileError(path, f"is more than the {max_bytes} bytes allowed for {what}")
+    return data
+
+
+# --------------------------------------------------------------------------------------------------
+# .npy / .npz
+
+
+def _read_exact(fh: IO[bytes], n: int) -> bytearray:
+    buf = bytearray(n)
+    view = memoryview(buf)
+    got = 0
+    while got < n:
+        chunk = fh.read(min(n - got, 1 << 24))
+        if not chunk:
+            break
+        view[got:got + len(chunk)] = chunk
+        got += len(chunk)
+    if got != n:
+        raise EOFError(f"truncated: the header claims {n} data bytes, only {got} follow")
+    return buf
+
+
+def _check_dtype(dtype: np.dtype, kinds: str, name: str) -> None:
+    if dtype.hasobject:
+        raise ValueError(f"{name} holds Python objects (pickles are never loaded)")
+    if dtype.kind == "c":
+        raise ValueError(f"{name} is complex ({dtype}); real numbers are expected")
+    if dtype.fields is not None or dtype.subdtype is not None:
+        raise ValueError(f"{name} has a structured dtype; plain numbers are expected")
+    if dtype.kind not in kinds:
+        expected = "numbers" if set(kinds) <= set(_NUMERIC_KINDS + "b") else f"dtype kind in {kinds!r}"
+        raise ValueError(f"{name} has dtype {dtype}; {expected} are expected")
+
+
+def _npy_from_stream(fh: IO[bytes], max_bytes: int, name: str, kinds: str, available: int | None) -> np.ndarray:
+    if available == 0:
+        raise EOFError(f"{name}: the file is empty")
+    version = np.lib.format.read_magic(fh)
+    if version == (1, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_1_0(fh, max_header_size=_NPY_MAX_HEADER)
+    elif version == (2, 0):
+        shape, fortran, dtype = np.lib.format.read_array_header_2_0(fh, max_header_size=_NPY_MAX_HEADER)
+    else:
+        raise ValueError(f"{name}: unsupported .npy format version {version[0]}.{version[1]}")
+    _check_dtype(dtype, kinds, name)
+    if any(int(s) < 0 for s in shape):
+        raise ValueError(f"{name}: negative dimension in shape {shape}")
+    nbytes = math.prod(int(s) for s in shape) * dtype.itemsize
+    if nbytes > max_bytes:
+        raise ValueError(f"{name}: shape {tuple(shape)} of {dtype} needs {nbytes} bytes, "
+                         f"more than the {max_bytes} allowed")
+    if available is not None:
+        left = available - fh.tell()
+        if nbytes > left:
+            raise EOFError(f"{name}: truncated: shape {tuple(shape)} of {dtype} needs {nbytes} bytes, "
+                           f"{max(left, 0)} follow")
+    buf = _read_exact(fh, nbytes)
+    arr = np.frombuffer(buf, dtype=dtype)
+    return arr.reshape(shape, order="F" if fortran else "C")
+
+
+def read_npy(source: str | Path | IO[bytes], max_bytes: int, name: str | None = None,
+             kinds: str = _NUMERIC_KINDS, path: str | Path | None = None) -> np.ndarray:
+    """Read one `.npy` array, its size checked from the header against `max_bytes` before allocating.
+
+    `source` is a path (opened with `open_regular`) or a binary file object positioned at the magic.
+    `kinds` are the accepted numpy dtype kinds (default real numbers "fiu"; add "U" for strings, "b" for bool);
+    object, complex and structured dtypes are always refused. `path` names the file in errors when `source`
+    is a stream. The array is writable and owns its memory.
+    """
+    where = path if path is not None else (source if isinstance(source, str | Path) else "<stream>")
+    label = name or "array"
+    try:
+        if isinstance(source, str | Path):
+            with open_regular(source, "an .npy array") as fh:
+                return _npy_from_stream(fh, max_bytes, label, kinds, file_size(fh))
+        return _npy_from_stream(source, max_bytes, label, kinds, None)
+    except AvatarFileError:
+        raise
+    except MemoryError:
+        raise AvatarFileError(where, f"{label}: not enough memory to read it") from None
+    except (ValueError, OSError, EOFError, SyntaxError, TypeError, OverflowError) as e:
+        msg = str(e) if str(e).startswith(label) else f"{label}: {e}"
+        raise AvatarFileError(where, f"not a readable .npy array ({msg})") from None
+
+
+def read_npz(path: str | Path, max_bytes: int, keys: Iterable[str] | None = None,
+             max_members: int = MAX_NPZ_MEMBERS, kinds: dict[str, str] | None = None) -> dict[str, np.ndarray]:
+    """Read the arrays of an `.npz` (as numpy.savez writes it), within a total budget of `max_bytes`.
+
+    Each member's `.npy` header is checked before its data is read; member count, every member's claimed
+    size and the total are bounded. `keys` limits which members are read (others are skipped unread);
+    `kinds` maps a member name to its accepted dtype kinds (default real numbers).
+    """
+    p = Path(path)
+    wanted = None if keys is None else set(keys)
+    out: dict[str, np.ndarray] = {}
+    try:
+        with open_regular(p, "an .npz archive") as fh, zipfile.ZipFile(fh) as zf:
+            infos = zf.infolist()
+            if len(infos) > max_members:
+                raise AvatarFileError(p, f"has {len(infos)} members, more than the {max_members} allowed")
+            left = max_bytes
+            for info in infos:
+                key = info.filename[:-4] if info.filename.endswith(".npy") else info.filename
+                if wanted is not None and key not in wanted:
+                    continue
+                if key in out:
+                    raise AvatarFileError(p, f"member {key!r} appears twice")
+                if info.file_size > left + _NPY_MAX_HEADER + 128:
+                    raise AvatarFileError(p, f"member {key!r} claims {info.file_size} bytes, more than the "
+                                          f"{max_bytes} allowed in all")
+                with zf.open(info) as member:
+                    arr = _npy_from_stream(member, left, key, (kinds or {}).get(key, _NUMERIC_KINDS), None)
+                out[key] = arr
+                left -= arr.nbytes
+    except AvatarFileError:
+        raise
+    except MemoryError:
+        raise AvatarFileError(p, "not enough memory to read it") from None
+    except (ValueError, OSError, EOFError, SyntaxError, TypeError, OverflowError, zipfile.BadZipFile,
+            NotImplementedError, RuntimeError) as e:
+        raise AvatarFileError(p, f"not a readable npz ({e})") from None
+    return out
+
+
+def real_floats(arr: Any, path: str | Path, what: str, dtype: Any = np.float32) -> np.ndarray:
+    """`arr` as finite real floats of `dtype`; AvatarFileError for complex, non-numeric, NaN/Inf or overflow."""
+    a = np.asarray(arr) if not isinstance(arr, np.ndarray) else arr
+    if a.dtype.kind == "c":
+        raise AvatarFileError(path, f"{what} are complex numbers ({a.dtype}); real numbers are expected")
+    if a.dtype.kind not in _NUMERIC_KINDS:
+        raise AvatarFileError(path, f"{what} have dtype {a.dtype}; real numbers are expected")
+    if a.dtype.kind == "f" and not np.isfinite(a).all():
+        raise AvatarFileError(path, f"{what} have {int((~np.isfinite(a)).sum())} NaN/Inf values")
+    with np.errstate(over="ignore", invalid="ignore"):
+        out = np.asarray(a, dtype=dtype)
+    if not np.isfinite(out).all():
+        raise AvatarFileError(path, f"{what} have values beyond the range of {np.dtype(dtype).name}")
+    return out
+
+
+# --------------------------------------------------------------------------------------------------
+# JSON
+
+
+def json_depth(data: bytes) -> int:
+    """Deepest bracket nesting of JSON text (UTF-8 bytes), computed without recursion.
+
+    Brackets inside strings are not counted (a quote after an odd run of backslashes is escaped). Exact for
+    valid JSON; for invalid text it is only an estimate (the parser refuses such text anyway).
+    """
+    b = np.frombuffer(data, dtype=np.uint8)
+    if b.size == 0:
+        return 0
+    idx = np.arange(b.size)
+    backslash = b == ord("\\")
+    last_plain = np.maximum.accumulate(np.where(~backslash, idx, -1))  # last non-backslash at or before i
+    run_before = np.empty(b.size, dtype=np.int64)  # backslashes right before position i
+    run_before[0] = 0
+    run_before[1:] = idx[:-1] - last_plain[:-1]
+    quote = (b == ord('"')) & (run_before % 2 == 0)
+    in_string = (np.cumsum(quote) - quote) % 2 == 1
+    step = np.zeros(b.size, dtype=np.int64)
+    step[(b == ord("[")) | (b == ord("{"))] = 1
+    step[(b == ord("]")) | (b == ord("}"))] = -1
+    step[in_string] = 0
+    return int(np.cumsum(step).max(initial=0))
+
+
+def _reject_constant(name: str) -> None:
+    raise ValueError(f"{name} is not a number")
+
+
+def _finite_float(text: str) -> float:
+    v = float(text)
+    if not math.isfinite(v):
+        raise ValueError(f"number {text[:20]}... is out of range")
+    return v
+
+
+def _bounded_int(text: str) -> int:
+    if len(text.lstrip("-")) > MAX_INT_DIGITS:
+        raise ValueError(f"integer with {len(text)} digits is out of range")
+    return int(text)
+
+
+def parse_json(data: bytes | str, path: str | Path, max_depth: int = MAX_JSON_DEPTH) -> Any:
+    """Parse JSON text with a nesting bound, refusing NaN/Infinity, non-finite floats and huge integers."""
+    raw = data.encode("utf-8") if isinstance(data, str) else data
+    try:
+        text = raw.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise AvatarFileError(path, f"not UTF-8 text ({e.reason} at byte {e.start})") from None
+    depth = json_depth(raw)
+    if depth > max_depth:
+        raise AvatarFileError(path, f"JSON nested {depth} levels deep, more than the {max_depth} allowed")
+    try:
+        return json.loads(text, parse_constant=_reject_constant, parse_float=_finite_float,
+                          parse_int=_bounded_int)
+    except json.JSONDecodeError as e:
+        raise AvatarFileError(path, f"not valid JSON ({e})") from None
+    except (ValueError, RecursionError) as e:
+        raise AvatarFileError(path, f"not valid JSON ({e})") from None
+
+
+def read_json(path: str | Path, max_bytes: int = MAX_JSON_BYTES, max_depth: int = MAX_JSON_DEPTH,
+              what: str = "a JSON file") -> Any:
+    """Read a regular JSON file of at most `max_bytes` and nesting at most `max_depth`."""
+    return parse_json(read_bytes(path, max_bytes, what), path, max_depth)
+
+
+# --------------------------------------------------------------------------------------------------
+# checked values from parsed JSON
+
+
+def json_dict(value: Any, path: str | Path, what: str) -> dict:
+    """`value` if it is a JSON object, else AvatarFileError naming `what`."""
+    if not isinstance(value, dict):
+        raise AvatarFileError(path, f"{what} must be a JSON object, got {type(value).__name__}")
+    return value
+
+
+def json_number(value: Any, path: str | Path, what: str, lo: float = -math.inf, hi: float = math.inf) -> float:
+    """A finite real number in [lo, hi] (bools refused)."""
+    if isinstance(value, bool) or not isinstance(value, int | float):
+        raise AvatarFileError(path, f"{what} must be a number, got {type(value).__name__}")
+    v = float(value)
+    if not (math.isfinite(v) and lo <= v <= hi):
+        raise AvatarFileError(path, f"{what} is {value}, outside [{lo}, {hi}]")
+    return v
+
+
+def json_int(value: Any, path: str | Path, what: str, lo: int = 0, hi: int = 2**31 - 1) -> int:
+    """An integer in [lo, hi] (a float with an integral value is accepted; bools refused)."""
+    if isinstance(value, float) and value.is_integer():
+        value = int(value)
+    if isinstance(value, bool) or not isinstance(value, int):
+        raise AvatarFileError(path, f"{what} must be an integer, got {type(value).__name__}")
+    if not lo <= value <= hi:
+        raise AvatarFileError(path, f"{what} is {value}, outside [{lo}, {hi}]")
+    return value
+
+
+def image_size(width: Any, height: Any, path: str | Path, max_side: int = MAX_IMAGE_SIDE) -> tuple[int, int]:
+    """A checked (width, height) in pixels: integers in [1, max_side]."""
+    return (json_int(width, path, "image width", 1, max_side), json_int(height, path, "image height", 1, max_side))
