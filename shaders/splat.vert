@@ -9,6 +9,7 @@ layout(std430, binding = 2) readonly buffer SplatBuffer { Splat splats[]; };
 layout(std430, binding = 3) readonly buffer OrderBuffer { uint order[]; };
 
 uniform vec2 u_viewport;
+uniform uint u_first;        // first sorted position of this draw (a slice of the sorted order)
 uniform int u_mode;           // 0: colour, 1: depth
 uniform int u_style;          // STYLE_*
 uniform float u_point_px;     // disc radius of STYLE_POINTS
@@ -20,7 +21,7 @@ flat out vec3 v_feature;         // composited feature: colour or depth
 flat out uint v_index;           // the Gaussian's index (id pass)
 
 void main() {
-    uint index = order[gl_InstanceID];
+    uint index = order[uint(gl_InstanceID) + u_first];
     Splat s = splats[index];
     v_centre_opacity = vec4(s.centre.xy, 0.0, s.centre.w);
     v_conic = s.conic.xyz;

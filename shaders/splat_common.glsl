@@ -41,3 +41,11 @@ float style_alpha(vec2 d, vec3 conic, float opacity, int style, float point_px, 
     }
     return splat_alpha(d, conic, opacity);
 }
+
+// Side of the screen-aligned square that holds a splat's oriented quad (half-axes ax1 = axes.xy, ax2 = axes.zw),
+// plus one pixel so that rounding never loses a pixel centre the quad covers: drawn as a GL point of this size,
+// a splat produces the same fragments as its quad (the extra pixels fail the 1/255 alpha test).
+float point_size(vec4 axes) {
+    vec2 half_box = abs(axes.xy) + abs(axes.zw);
+    return 2.0 * max(half_box.x, half_box.y) + 1.0;
+}

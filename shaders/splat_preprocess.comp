@@ -8,7 +8,9 @@ layout(local_size_x = 128) in;
 layout(std430, binding = 0) readonly buffer GeometryBuffer { vec4 geometry[]; };  // (mean, opacity), quat wxyz, (scale, 0)
 layout(std430, binding = 1) readonly buffer SHBuffer { float sh[]; };            // N x K x 3, coefficient-major
 layout(std430, binding = 2) writeonly buffer SplatBuffer { Splat splats[]; };
-layout(std430, binding = 5) buffer CounterBuffer { uint drawn_count; };  // Gaussians not culled (zeroed per run)
+// drawn_count: Gaussians not culled; oversize_count: of those, the ones whose bounding square exceeds u_max_point
+// pixels (then the colour pass draws quads instead of points: splat_points.vert). Both zeroed per run.
+layout(std430, binding = 5) buffer CounterBuffer { uint drawn_count; uint oversize_count; };
 
 uniform mat4 u_view;       // world -> OpenCV camera
 uniform mat4 u_proj;       // OpenCV camera -> clip (Camera.opengl_projection)
@@ -19,6 +21,7 @@ uniform vec3 u_campos;     // camera centre, world
 uniform float u_near;      // Gaussians with depth <= near are culled
 uniform uint u_count;
 uniform int u_sh_coeffs;   // K = (degree + 1)^2
+uniform float u_max_point; // largest point size the GL draws (GL_POINT_SIZE_RANGE)
 
 const float SH_C0 = 0.28209479177387814;
 const float SH_C1 = 0.4886025119029199;
@@ -129,4 +132,5 @@ void main() {
     splats[i].conic = vec4(c / det, -b / det, a / det, 0.0);
     splats[i].feature = vec4(sh_colour(i, mean), 0.0);
     atomicAdd(drawn_count, 1u);
+    if (point_size(vec4(ax1, ax2)) > u_max_point) atomicAdd(oversize_count, 1u);
 }

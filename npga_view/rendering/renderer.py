@@ -9,7 +9,9 @@ Pipeline per frame (see shaders/):
    t.x/t.z, t.y/t.z clamped to 1.3 tan(fov/2), +0.3 px on the covariance diagonal), SH colour as
    `computeColorFromSH`, and a quad along the covariance eigenvectors reaching the radius where
    alpha = 1/255 (at most 3.33 sigma; fragments beyond it are discarded by the 3DGS rule anyway).
-3. draw: one instanced quad per Gaussian in sorted order; the fragment shader evaluates
+3. draw: one instanced quad per Gaussian in sorted order (or, when every splat's bounding square fits the
+   GL's point sizes, one GL point per Gaussian: the same fragments from a quarter of the vertex work, which is
+   what bounds llvmpipe); the fragment shader evaluates
    alpha = min(0.99, o exp(-d^T S^-1 d / 2)) at d = gl_FragCoord - centre with the 2D conic, exactly as
    renderCUDA, discards it below 1/255, and blends premultiplied "over" into an RGBA32F target.
 
@@ -22,6 +24,11 @@ T_stop < 1e-4 / (1 - alpha) <= 1e-2, i.e. up to 1 % where a pixel saturates with
 less otherwise (the PSNR tests against tests/reference_rasterizer.py include it).
 Pixels of 3DGS outside a Gaussian's 16x16-tile bounding rectangle also see no contribution there, while here
 every pixel with alpha >= 1/255 does; this touches only alphas within [1/255, ~1/90] at the 3-sigma edge.
+
+Frame-budgeted drawing: `begin_draw` sorts, runs the pre-pass and clears a back target; `continue_draw(budget)`
+draws the sorted order in slices (consecutive ranges of it, so the blend order and the pixels are those of one
+draw) until the budget is spent, and swaps the finished image to the front, which `present` shows (the previous
+image stays there meanwhile). `draw` is both with no budget.
 
 Camera-only changes re-sort, re-run the pre-pass and redraw; the Gaussian attributes are uploaded only by
 `set_gaussians`.
@@ -41,8 +48,10 @@ Inspection (see npga_core/inspect.py for the colour modes, which only replace th
 
 from __future__ import annotations
 
+import math
 import re
 import time
+from dataclasses import dataclass
 from pathlib import Path
 from typing import TYPE_CHECKING
 
@@ -51,6 +60,7 @@ import numpy as np
 
 from npga_core.camera.cameras import Camera
 from npga_core.model.gaussians import PosedGaussians, sh_degree_from_count
+from npga_view.rendering.aux_passes import AuxiliaryPasses
 from npga_view.rendering.lines import LinePass
 from npga_view.rendering.sorting import sort_back_to_front, view_depths
 
@@ -63,7 +73,6 @@ _GROUP = 128
 _INCLUDE = re.compile(r'^#include\s+"([^"]+)"\s*$', re.MULTILINE)
 MODES = ("rgb", "depth", "alpha")
 STYLES = ("splats", "points", "ellipsoids")
-PICK_THRESHOLD = 0.2  # alpha a Gaussian must reach at a pixel to be picked there
 
 
 def load_shader(name: str, defines: dict[str, object] | None = None) -> str:
@@ -77,12 +86,33 @@ def load_shader(name: str, defines: dict[str, object] | None = None) -> str:
     return source
 
 
+@dataclass
+class DrawJob:
+    """An image being drawn slice by slice into the back target."""
+
+    key: tuple  # camera key, mode, flip
+    width: int
+    height: int
+    mode: str
+    points: bool  # colour pass as GL points (every splat fits the point size range)
+    total: int  # sorted positions to draw
+    next: int = 0  # next sorted position
+    slices: int = 0
+    draw_ms: float = 0.0
+
+
+def camera_key(camera: Camera) -> tuple:
+    """What a drawn image depends on of a camera."""
+    return (camera.world_to_camera.tobytes(), camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
+            camera.height)
+
+
 def _mat4_uniform(m: np.ndarray) -> bytes:
     """Column-major float32 bytes of a row-major 4x4 matrix, as GLSL mat4 uniforms expect."""
     return np.ascontiguousarray(np.asarray(m, dtype=np.float32).T).tobytes()
 
 
-class SplatRenderer:
+class SplatRenderer(AuxiliaryPasses):
     """Draws a `PosedGaussians` cloud from any `Camera` into float framebuffers.
 
     `ctx` must be an OpenGL >= 4.3 moderngl context (`npga_view.rendering.gl`). `width`, `height` is the size of the
@@ -90,6 +120,8 @@ class SplatRenderer:
     `exact_sort` sorts by the exact float32 depth (two 16-bit radix passes, the order 3DGS uses); False uses
     one pass over 16-bit quantised depths (about 2x faster; near-equal depths may swap).
     """
+
+    _load_shader = staticmethod(load_shader)
 
     def __init__(self, ctx: moderngl.Context, width: int, height: int, exact_sort: bool = True) -> None:
         self.ctx = ctx
@@ -101,6 +133,17 @@ class SplatRenderer:
         self._splat_prog = ctx.program(vertex_shader=load_shader("splat.vert"),
                                        fragment_shader=load_shader("splat.frag"))
         self._splat_vao = ctx.vertex_array(self._splat_prog, [])
+        self._points_prog = ctx.program(vertex_shader=load_shader("splat_points.vert"),
+                                        fragment_shader=load_shader("splat.frag"))
+        self._points_vao = ctx.vertex_array(self._points_prog, [])
+        #: largest GL point size; splats of up to this size may be drawn as points (`use_points`)
+        self.max_point = float(ctx.info["GL_POINT_SIZE_RANGE"][1])
+        self.use_points = True
+        self._oversize = 0
+        self._job: DrawJob | None = None
+        self._job_camera: Camera | None = None
+        self._job_framebuffer: moderngl.Framebuffer | None = None
+        self._ms_per_splat = 0.0  # measured cost of the colour pass per sorted position (0: not yet)
         self._id_prog = ctx.program(vertex_shader=load_shader("splat.vert"),
                                     fragment_shader=load_shader("splat_id.frag"))
         self._id_vao = ctx.vertex_array(self._id_prog, [])
@@ -120,9 +163,8 @@ class SplatRenderer:
         self._buffers: dict[str, moderngl.Buffer] = {}
         self._sh_coeffs = 1
         self._pending_upload_ms = 0.0
-        self._size = (0, 0)
-        self._colour_tex: moderngl.Texture | None = None
-        self._fbo: moderngl.Framebuffer | None = None
+        self._size = (0, 0)  # size of the back target
+        self._targets: list[tuple[moderngl.Texture, moderngl.Framebuffer] | None] = [None, None]  # front, back
         self._latent_fbo: tuple[int, moderngl.Framebuffer, list[moderngl.Texture]] | None = None
         self._prepared: tuple | None = None  # (camera key, flip) of the current splat buffer + order
         self._visible = 0
@@ -140,18 +182,44 @@ class SplatRenderer:
         self.ctx.__enter__()
 
     def _resize(self, width: int, height: int) -> None:
-        if (width, height) == self._size:
+        """Make the back target `width` x `height` (the front keeps the last finished image)."""
+        back = self._targets[1]
+        if back is not None and back[0].size == (width, height):
             return
-        self._release_targets()
+        info = self.ctx.info  # a target larger than GL allows crashed natively (stack smashing) in Mesa
+        limit = min(int(info.get("GL_MAX_TEXTURE_SIZE", 16384)), int(info.get("GL_MAX_RENDERBUFFER_SIZE", 16384)),
+                    *(int(v) for v in info.get("GL_MAX_VIEWPORT_DIMS", (16384, 16384))))
+        if not (1 <= width <= limit and 1 <= height <= limit):
+            raise ValueError(f"image size {width}x{height} is outside what this GL can allocate (1..{limit} per side)")
+        if back is not None:
+            back[1].release()
+            back[0].release()
         self._size = (width, height)
-        self._colour_tex = self.ctx.texture((width, height), 4, dtype="f4")
-        self._colour_tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        self._fbo = self.ctx.framebuffer([self._colour_tex])
+        tex = self.ctx.texture((width, height), 4, dtype="f4")
+        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
+        self._targets[1] = (tex, self.ctx.framebuffer([tex]))
+
+    @property
+    def _colour_tex(self) -> moderngl.Texture | None:
+        """The finished image (front target)."""
+        return None if self._targets[0] is None else self._targets[0][0]
+
+    @property
+    def _fbo(self) -> moderngl.Framebuffer | None:
+        return None if self._targets[0] is None else self._targets[0][1]
+
+    @property
+    def image_size(self) -> tuple[int, int]:
+        """(width, height) of the finished image that `present` shows ((0, 0) before the first)."""
+        return (0, 0) if self._targets[0] is None else self._targets[0][0].size
 
     def _release_targets(self) -> None:
-        for obj in (self._fbo, self._colour_tex):
-            if obj is not None:
-                obj.release()
+        for target in self._targets:
+            if target is not None:
+                target[1].release()
+                target[0].release()
+        self._targets = [None, None]
+        self._job = None
         if self._latent_fbo is not None:
             _, fbo, textures = self._latent_fbo
             fbo.release()
@@ -160,7 +228,7 @@ class SplatRenderer:
         if self._id_target is not None:
             for obj in reversed(self._id_target):
                 obj.release()
-        self._fbo = self._colour_tex = self._latent_fbo = self._id_target = None
+        self._latent_fbo = self._id_target = None
 
     def _buffer(self, name: str, data: np.ndarray | None = None, size: int = 0) -> moderngl.Buffer:
         """(Re)allocate the named buffer when it is too small, then write the C-contiguous `data` if given."""
@@ -192,8 +260,8 @@ class SplatRenderer:
         if self._lines is not None:
             self._lines.release()
             self._lines = None
-        for obj in (self._splat_vao, self._splat_prog, self._id_vao, self._id_prog, self._composite_vao,
-                    self._composite_prog, self._preprocess):
+        for obj in (self._splat_vao, self._splat_prog, self._points_vao, self._points_prog, self._id_vao,
+                    self._id_prog, self._composite_vao, self._composite_prog, self._preprocess):
             obj.release()
 
     # --- data ----------------------------------------------------------------------------------
@@ -227,7 +295,9 @@ class SplatRenderer:
         self._buffer("sh", sh)
         self._buffer("splats", size=n * 64)
         self._buffer("order", size=n * 4)
-        self._buffer("counter", size=4)
+        if n != self._count:
+            self._job = None  # the buffers it draws from may be reallocated
+        self._buffer("counter", size=8)
         if posed.latent is not None:
             latent = np.ascontiguousarray(posed.latent, dtype=np.float32).reshape(n, -1)
             self._latent_dim = latent.shape[1]
@@ -243,13 +313,13 @@ class SplatRenderer:
     # --- per-camera work -----------------------------------------------------------------------
     def _prepare(self, camera: Camera, flip_y: bool) -> None:
         """Sort and run the pre-pass for `camera` (skipped when camera and data are unchanged)."""
-        key = (camera.world_to_camera.tobytes(), camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
-               camera.height, flip_y)
+        key = (*camera_key(camera), flip_y)
         timings = {"sort": 0.0, "upload": self._pending_upload_ms, "preprocess": 0.0}
         self._pending_upload_ms = 0.0
         if self._prepared == key:
             self.last_timings.update(timings)
             return
+        self._job = None  # a new pre-pass overwrites the splats an unfinished image draws from
         t0 = time.perf_counter()
         z = view_depths(self._means, camera.world_to_camera)
         order = sort_back_to_front(z, NEAR, exact=self.exact_sort)
@@ -267,15 +337,15 @@ class SplatRenderer:
         prog["u_near"].value = NEAR
         prog["u_count"].value = self._count
         prog["u_sh_coeffs"].value = self._sh_coeffs
+        prog["u_max_point"].value = self.max_point
         self._buffers["geometry"].bind_to_storage_buffer(0)
         self._buffers["sh"].bind_to_storage_buffer(1)
         self._buffers["splats"].bind_to_storage_buffer(2)
-        self._buffers["counter"].write(np.zeros(1, np.uint32))
+        self._buffers["counter"].write(np.zeros(2, np.uint32))
         self._buffers["counter"].bind_to_storage_buffer(5)
         prog.run(group_x=(self._count + _GROUP - 1) // _GROUP)
         self.ctx.memory_barrier()
-        if self.sync_timings:
-            self.ctx.finish()
+        self._oversize = int(np.frombuffer(self._buffers["counter"].read(size=8), np.uint32)[1])
         t3 = time.perf_counter()
         timings.update(sort=(t1 - t0) * 1e3, upload=timings["upload"] + (t2 - t1) * 1e3, preprocess=(t3 - t2) * 1e3)
         self.last_timings.update(timings)
@@ -298,32 +368,116 @@ class SplatRenderer:
         window (row 0 at the bottom). Clearing with (bg, 1) instead of zeros composites over a background
         directly (then alpha is lost). Timings go to `last_timings` (ms: sort, upload, preprocess, draw).
         """
+        self.begin_draw(camera, mode, flip_y, clear, framebuffer)
+        self.continue_draw(math.inf)
+
+    def begin_draw(self, camera: Camera, mode: str = "rgb", flip_y: bool = False,
+                   clear: tuple[float, float, float, float] | None = (0.0, 0.0, 0.0, 0.0),
+                   framebuffer: moderngl.Framebuffer | None = None) -> None:
+        """Start an image: sort, pre-pass and clear the back target (or `framebuffer`); an unfinished image is
+        dropped. `continue_draw` draws it."""
         if mode not in MODES:
             raise ValueError(f"unknown render mode {mode!r}; choose from {', '.join(MODES)} (or render_latent)")
         self._activate()
-        if framebuffer is None:
-            self._resize(camera.width, camera.height)
-            framebuffer = self._fbo
-        viewport = (0, 0, camera.width, camera.height)
         self.last_timings = {}
         if self._count:
             self._prepare(camera, flip_y)
-        t0 = time.perf_counter()
-        self._begin_pass(framebuffer, viewport)
+        if framebuffer is None:
+            self._resize(camera.width, camera.height)
+        points = self.use_points and self.style == "splats" and self._oversize == 0
+        self._job = DrawJob((*camera_key(camera), mode, flip_y), camera.width, camera.height, mode, points,
+                            self._visible if self._count else 0)
+        self._job_camera, self._job_framebuffer = camera, framebuffer
         if clear is not None:
-            framebuffer.clear(*clear, viewport=viewport)
-        if self._count and self._visible:
-            self._set_style(self._splat_prog, camera)
-            self._splat_prog["u_mode"].value = 1 if mode == "depth" else 0
-            self._buffers["splats"].bind_to_storage_buffer(2)
-            self._buffers["order"].bind_to_storage_buffer(3)
-            self._splat_vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._visible)
-        if mode == "rgb" and self._lines is not None and self._lines.edge_count:
-            self._lines.draw(camera, flip_y, NEAR)
-        if self.sync_timings:
-            self.ctx.finish()
-        self.last_timings["draw"] = (time.perf_counter() - t0) * 1e3
-        self.last_timings["visible"] = float(self._visible if self._count else 0)
+            fbo = framebuffer if framebuffer is not None else self._targets[1][1]
+            fbo.clear(*clear, viewport=(0, 0, camera.width, camera.height))
+
+    @property
+    def drawing(self) -> bool:
+        """An image is started and not finished."""
+        return self._job is not None
+
+    @property
+    def progress(self) -> float:
+        """Fraction of the unfinished image drawn (1.0 when none)."""
+        job = self._job
+        return 1.0 if job is None or not job.total else job.next / job.total
+
+    def cancel_draw(self) -> None:
+        """Drop the unfinished image (the finished one stays in front)."""
+        self._job = None
+
+    def continue_draw(self, budget_ms: float = math.inf) -> bool:
+        """Draw slices of the started image for about `budget_ms` (at least one slice); True when it is
+        finished and swapped to the front (then `last_timings` has the whole image's figures)."""
+        job = self._job
+        if job is None:
+            return True
+        self._activate()
+        camera, external = self._job_camera, self._job_framebuffer
+        fbo = external if external is not None else self._targets[1][1]
+        t_start = time.perf_counter()
+        while job.next < job.total:
+            remaining = budget_ms - (time.perf_counter() - t_start) * 1e3
+            if job.slices and remaining <= 0:
+                break
+            if math.isinf(budget_ms):
+                count = job.total - job.next
+            else:
+                rate = self._ms_per_splat or 0.002
+                count = min(job.total - job.next, int(max(2048, remaining / rate)))
+            t0 = time.perf_counter()
+            self._draw_slice(job, camera, fbo, job.next, count)
+            if self.sync_timings or not math.isinf(budget_ms):
+                self.ctx.finish()
+            ms = (time.perf_counter() - t0) * 1e3
+            if count >= 1024:
+                rate = ms / count
+                self._ms_per_splat = rate if not self._ms_per_splat else 0.5 * (self._ms_per_splat + rate)
+            job.next += count
+            job.slices += 1
+            job.draw_ms += ms
+        if job.next < job.total:
+            return False
+        t0 = time.perf_counter()
+        if job.mode == "rgb" and self._lines is not None and self._lines.edge_count:
+            self._begin_pass(fbo, (0, 0, job.width, job.height))
+            self._lines.draw(camera, job.key[-1], NEAR)
+            if self.sync_timings:
+                self.ctx.finish()
+        job.draw_ms += (time.perf_counter() - t0) * 1e3
+        self.last_timings["draw"] = job.draw_ms
+        self.last_timings["slices"] = float(job.slices)
+        self.last_timings["visible"] = float(job.total)
+        self.last_timings["points"] = float(job.points)
+        if external is None:
+            self._targets[0], self._targets[1] = self._targets[1], self._targets[0]
+            self._size = (0, 0) if self._targets[1] is None else self._targets[1][0].size
+        self._job = None
+        return True
+
+    def _draw_slice(self, job: DrawJob, camera: Camera, fbo: moderngl.Framebuffer, first: int, count: int) -> None:
+        """Blend sorted positions [first, first + count) into `fbo`."""
+        self._buffers["splats"].bind_to_storage_buffer(2)
+        self._buffers["order"].bind_to_storage_buffer(3)
+        if job.points:
+            guard = math.ceil(self.max_point / 2)
+            self._begin_pass(fbo, (-guard, -guard, job.width + 2 * guard, job.height + 2 * guard))
+            self.ctx.enable(moderngl.PROGRAM_POINT_SIZE)
+            prog = self._points_prog
+            prog["u_viewport"].value = (float(job.width), float(job.height))
+            prog["u_guard"].value = float(guard)
+            prog["u_first"].value = first
+            prog["u_mode"].value = 1 if job.mode == "depth" else 0
+            self._points_vao.render(moderngl.POINTS, vertices=count)
+            self.ctx.disable(moderngl.PROGRAM_POINT_SIZE)
+        else:
+            self._begin_pass(fbo, (0, 0, job.width, job.height))
+            prog = self._splat_prog
+            self._set_style(prog, camera)
+            prog["u_first"].value = first
+            prog["u_mode"].value = 1 if job.mode == "depth" else 0
+            self._splat_vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
 
     def _set_style(self, prog: moderngl.Program, camera: Camera) -> None:
         if self.style not in STYLES:
@@ -355,129 +509,6 @@ class SplatRenderer:
             out = image[..., 3].copy()
         self.last_timings["readback"] = (time.perf_counter() - t0) * 1e3
         return out
-
-    def _latent_program(self, targets: int) -> tuple[moderngl.Program, moderngl.VertexArray]:
-        if targets not in self._latent_progs:
-            defines = {"NUM_TARGETS": targets}
-            prog = self.ctx.program(vertex_shader=load_shader("splat_latent.vert", defines),
-                                    fragment_shader=load_shader("splat_latent.frag", defines))
-            self._latent_progs[targets] = (prog, self.ctx.vertex_array(prog, []))
-        return self._latent_progs[targets]
-
-    def _latent_targets(self, width: int, height: int, targets: int) -> tuple[moderngl.Framebuffer, list]:
-        if self._latent_fbo is not None:
-            count, fbo, textures = self._latent_fbo
-            if count == targets and fbo.size == (width, height):
-                return fbo, textures
-            fbo.release()
-            for t in textures:
-                t.release()
-        textures = [self.ctx.texture((width, height), 4, dtype="f4") for _ in range(targets)]
-        fbo = self.ctx.framebuffer(textures)
-        self._latent_fbo = (targets, fbo, textures)
-        return fbo, textures
-
-    def render_latent(self, camera: Camera) -> np.ndarray:
-        """Composite the latent channels like colour: (H, W, Hdim) = sum_i h_i a_i T_i (no background).
-
-        Each RGBA32F target carries three channels plus alpha; up to 8 targets (24 channels) per pass.
-        """
-        if self._latent_dim == 0:
-            raise ValueError("the uploaded Gaussians have no latent features")
-        self._activate()
-        w, h = camera.width, camera.height
-        self.last_timings = {}
-        self._prepare(camera, False)
-        t0 = time.perf_counter()
-        out = np.empty((h, w, self._latent_dim), dtype=np.float32)
-        per_pass = 3 * self.max_targets
-        for first in range(0, self._latent_dim, per_pass):
-            channels = min(per_pass, self._latent_dim - first)
-            targets = (channels + 2) // 3
-            prog, vao = self._latent_program(targets)
-            fbo, _ = self._latent_targets(w, h, targets)
-            self._begin_pass(fbo, (0, 0, w, h))
-            fbo.clear(0.0, 0.0, 0.0, 0.0)
-            if self._visible:
-                prog["u_viewport"].value = (float(w), float(h))
-                prog["u_latent_dim"].value = self._latent_dim
-                prog["u_first_channel"].value = first
-                self._buffers["splats"].bind_to_storage_buffer(2)
-                self._buffers["order"].bind_to_storage_buffer(3)
-                self._buffers["latent"].bind_to_storage_buffer(4)
-                vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._visible)
-            for k in range(targets):
-                lo = first + 3 * k
-                n = min(3, self._latent_dim - lo)
-                out[..., lo:lo + n] = self._read(fbo, k, w, h)[..., :n]
-        self.last_timings["draw"] = (time.perf_counter() - t0) * 1e3
-        return out
-
-    # --- inspection ----------------------------------------------------------------------------
-    @property
-    def drawn_count(self) -> int:
-        """Gaussians kept by the last pre-pass (drawn by the last `draw`/`render` if `style` is "splats")."""
-        if not self._count or self._prepared is None:
-            return 0
-        self._activate()
-        return int(np.frombuffer(self._buffers["counter"].read(size=4), np.uint32)[0])
-
-    def drawn_mask(self) -> np.ndarray:
-        """(N,) bool: which Gaussians the last pre-pass kept (reads the projected splats back)."""
-        if not self._count or self._prepared is None:
-            return np.zeros(self._count, bool)
-        self._activate()
-        data = self._buffers["splats"].read(size=self._count * 64)
-        return np.frombuffer(data, np.float32).reshape(self._count, 16)[:, 3] > 0.0
-
-    def _ids_into(self, camera: Camera, threshold: float, scissor: tuple[int, int, int, int] | None) -> None:
-        w, h = camera.width, camera.height
-        if self._id_target is None or self._id_target[0].size != (w, h):
-            if self._id_target is not None:
-                for obj in reversed(self._id_target):
-                    obj.release()
-            tex = self.ctx.texture((w, h), 1, dtype="u4")
-            self._id_target = (tex, self.ctx.framebuffer([tex]))
-        fbo = self._id_target[1]
-        fbo.use()
-        self.ctx.viewport = (0, 0, w, h)
-        self.ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
-        fbo.clear(0.0, 0.0, 0.0, 0.0)
-        if not self._count:
-            return
-        self._prepare(camera, False)
-        if not self._visible:
-            return
-        prog = self._id_prog
-        self._set_style(prog, camera)
-        prog["u_threshold"].value = float(threshold)
-        self._buffers["splats"].bind_to_storage_buffer(2)
-        self._buffers["order"].bind_to_storage_buffer(3)
-        fbo.scissor = scissor
-        try:
-            self._id_vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._visible)
-        finally:
-            fbo.scissor = None
-
-    def render_ids(self, camera: Camera, threshold: float = PICK_THRESHOLD) -> np.ndarray:
-        """(H, W) int64: per pixel the front-most Gaussian (by centre depth) whose alpha there, in the current
-        `style`, is at least `threshold`; -1 where there is none. Rows top to bottom."""
-        self._activate()
-        self._ids_into(camera, threshold, None)
-        data = self._id_target[1].read(viewport=(0, 0, camera.width, camera.height), components=1, dtype="u4")
-        return np.frombuffer(data, np.uint32).reshape(camera.height, camera.width).astype(np.int64) - 1
-
-    def pick(self, camera: Camera, x: float, y: float, threshold: float = PICK_THRESHOLD) -> int | None:
-        """The Gaussian at pixel (x, y) (OpenCV: x right, y down, from the image's top-left corner) as
-        `render_ids` defines it, or None; only that pixel is rasterised."""
-        px, py = int(np.floor(x)), int(np.floor(y))
-        if not (0 <= px < camera.width and 0 <= py < camera.height):
-            return None
-        self._activate()
-        self._ids_into(camera, threshold, (px, py, 1, 1))
-        data = self._id_target[1].read(viewport=(px, py, 1, 1), components=1, dtype="u4")
-        value = int(np.frombuffer(data, np.uint32)[0])
-        return value - 1 if value else None
 
     def show(self, frame: InspectFrame) -> None:
         """Upload an inspection frame (`Inspector.frame` in npga_core.inspection): Gaussians, style and lines."""
@@ -511,7 +542,13 @@ class SplatRenderer:
         framebuffer.use()
         self.ctx.viewport = viewport or (0, 0, *framebuffer.size)
         self.ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST)
-        self._colour_tex.use(0)
+        tex = self._colour_tex
+        if tex is None:
+            return
+        vp = self.ctx.viewport
+        scaled = tex.size != (vp[2], vp[3])  # a reduced-resolution image: upscale bilinearly
+        tex.filter = (moderngl.LINEAR, moderngl.LINEAR) if scaled else (moderngl.NEAREST, moderngl.NEAREST)
+        tex.use(0)
         self._composite_prog["u_image"].value = 0
         self._composite_prog["u_background"].value = tuple(float(v) for v in background)
         self._composite_prog["u_flip_y"].value = 1 if flip_y else 0

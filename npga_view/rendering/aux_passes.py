@@ -1,0 +1,146 @@
+"""The passes of `SplatRenderer` besides the colour image: latent features (for the screen-space CNN) and
+Gaussian ids (picking), and what the last pre-pass kept.
+
+A mixin: `SplatRenderer` inherits these; they use its buffers (`splats`, `order`, `latent`), its pre-pass
+(`_prepare`, which drops an unfinished sliced image when the camera differs) and its programs.
+"""
+
+from __future__ import annotations
+
+import time
+
+import moderngl
+import numpy as np
+
+from npga_core.camera.cameras import Camera
+
+PICK_THRESHOLD = 0.2  # alpha a Gaussian must reach at a pixel to be picked there
+
+
+class AuxiliaryPasses:
+    """Latent, id and coverage passes; see the module docstring."""
+
+    def _latent_program(self, targets: int) -> tuple[moderngl.Program, moderngl.VertexArray]:
+        if targets not in self._latent_progs:
+            defines = {"NUM_TARGETS": targets}
+            prog = self.ctx.program(vertex_shader=self._load_shader("splat_latent.vert", defines),
+                                    fragment_shader=self._load_shader("splat_latent.frag", defines))
+            self._latent_progs[targets] = (prog, self.ctx.vertex_array(prog, []))
+        return self._latent_progs[targets]
+
+    def _latent_targets(self, width: int, height: int, targets: int) -> tuple[moderngl.Framebuffer, list]:
+        if self._latent_fbo is not None:
+            count, fbo, textures = self._latent_fbo
+            if count == targets and fbo.size == (width, height):
+                return fbo, textures
+            fbo.release()
+            for t in textures:
+                t.release()
+        textures = [self.ctx.texture((width, height), 4, dtype="f4") for _ in range(targets)]
+        fbo = self.ctx.framebuffer(textures)
+        self._latent_fbo = (targets, fbo, textures)
+        return fbo, textures
+
+    def render_latent(self, camera: Camera) -> np.ndarray:
+        """Composite the latent channels like colour: (H, W, Hdim) = sum_i h_i a_i T_i (no background).
+
+        Each RGBA32F target carries three channels plus alpha; up to 8 targets (24 channels) per pass.
+        """
+        if self._latent_dim == 0:
+            raise ValueError("the uploaded Gaussians have no latent features")
+        self._activate()
+        w, h = camera.width, camera.height
+        self.last_timings = {}
+        self._prepare(camera, False)
+        t0 = time.perf_counter()
+        out = np.empty((h, w, self._latent_dim), dtype=np.float32)
+        per_pass = 3 * self.max_targets
+        for first in range(0, self._latent_dim, per_pass):
+            channels = min(per_pass, self._latent_dim - first)
+            targets = (channels + 2) // 3
+            prog, vao = self._latent_program(targets)
+            fbo, _ = self._latent_targets(w, h, targets)
+            self._begin_pass(fbo, (0, 0, w, h))
+            fbo.clear(0.0, 0.0, 0.0, 0.0)
+            if self._visible:
+                prog["u_viewport"].value = (float(w), float(h))
+                prog["u_latent_dim"].value = self._latent_dim
+                prog["u_first_channel"].value = first
+                self._buffers["splats"].bind_to_storage_buffer(2)
+                self._buffers["order"].bind_to_storage_buffer(3)
+                self._buffers["latent"].bind_to_storage_buffer(4)
+                vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._visible)
+            for k in range(targets):
+                lo = first + 3 * k
+                n = min(3, self._latent_dim - lo)
+                out[..., lo:lo + n] = self._read(fbo, k, w, h)[..., :n]
+        self.last_timings["draw"] = (time.perf_counter() - t0) * 1e3
+        return out
+
+    # --- inspection ----------------------------------------------------------------------------
+    @property
+    def drawn_count(self) -> int:
+        """Gaussians kept by the last pre-pass (drawn by the last `draw`/`render` if `style` is "splats")."""
+        if not self._count or self._prepared is None:
+            return 0
+        self._activate()
+        return int(np.frombuffer(self._buffers["counter"].read(size=4), np.uint32)[0])
+
+    def drawn_mask(self) -> np.ndarray:
+        """(N,) bool: which Gaussians the last pre-pass kept (reads the projected splats back)."""
+        if not self._count or self._prepared is None:
+            return np.zeros(self._count, bool)
+        self._activate()
+        data = self._buffers["splats"].read(size=self._count * 64)
+        return np.frombuffer(data, np.float32).reshape(self._count, 16)[:, 3] > 0.0
+
+    def _ids_into(self, camera: Camera, threshold: float, scissor: tuple[int, int, int, int] | None) -> None:
+        w, h = camera.width, camera.height
+        if self._id_target is None or self._id_target[0].size != (w, h):
+            if self._id_target is not None:
+                for obj in reversed(self._id_target):
+                    obj.release()
+            tex = self.ctx.texture((w, h), 1, dtype="u4")
+            self._id_target = (tex, self.ctx.framebuffer([tex]))
+        fbo = self._id_target[1]
+        fbo.use()
+        self.ctx.viewport = (0, 0, w, h)
+        self.ctx.disable(moderngl.BLEND | moderngl.DEPTH_TEST | moderngl.CULL_FACE)
+        fbo.clear(0.0, 0.0, 0.0, 0.0)
+        if not self._count:
+            return
+        self._prepare(camera, False)
+        if not self._visible:
+            return
+        prog = self._id_prog
+        self._set_style(prog, camera)
+        prog["u_threshold"].value = float(threshold)
+        prog["u_first"].value = 0
+        self._buffers["splats"].bind_to_storage_buffer(2)
+        self._buffers["order"].bind_to_storage_buffer(3)
+        fbo.scissor = scissor
+        try:
+            self._id_vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._visible)
+        finally:
+            fbo.scissor = None
+
+    def render_ids(self, camera: Camera, threshold: float = PICK_THRESHOLD) -> np.ndarray:
+        """(H, W) int64: per pixel the front-most Gaussian (by centre depth) whose alpha there, in the current
+        `style`, is at least `threshold`; -1 where there is none. Rows top to bottom."""
+        self._activate()
+        self._ids_into(camera, threshold, None)
+        data = self._id_target[1].read(viewport=(0, 0, camera.width, camera.height), components=1, dtype="u4")
+        return np.frombuffer(data, np.uint32).reshape(camera.height, camera.width).astype(np.int64) - 1
+
+    def pick(self, camera: Camera, x: float, y: float, threshold: float = PICK_THRESHOLD) -> int | None:
+        """The Gaussian at pixel (x, y) (OpenCV: x right, y down, from the image's top-left corner) as
+        `render_ids` defines it, or None; only that pixel is rasterised."""
+        px, py = int(np.floor(x)), int(np.floor(y))
+        if not (0 <= px < camera.width and 0 <= py < camera.height):
+            return None
+        self._activate()
+        self._ids_into(camera, threshold, (px, py, 1, 1))
+        data = self._id_target[1].read(viewport=(px, py, 1, 1), components=1, dtype="u4")
+        value = int(np.frombuffer(data, np.uint32)[0])
+        return value - 1 if value else None
+
