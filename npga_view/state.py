@@ -14,12 +14,28 @@ from pathlib import Path
 import numpy as np
 
 from npga_core.camera.orbit import OrbitCamera
+from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
+from npga_core.files.untrusted import read_json
 from npga_core.inspection.inspector import InspectSettings
 
 MAX_SLIDERS = 50
 RENDER_MODES = ("rgb", "depth", "alpha")
 SESSION_VERSION = 1
+MAX_SESSION_BYTES = 4 * 2**20  # sessions, recent files and presets are small JSON files
+
+
+def _session_number(v: object, what: str, lo: float = -1e12, hi: float = 1e12) -> float:
+    """A finite number in [lo, hi] from a session file (strings such as "nan" are refused)."""
+    if isinstance(v, bool) or not isinstance(v, int | float) or not lo <= v <= hi:
+        raise ValueError(f"{what} must be a number in [{lo:g}, {hi:g}], got {str(v)[:40]}")
+    return float(v)
+
+
+def _session_dict(v: object, what: str) -> dict:
+    if not isinstance(v, dict):
+        raise ValueError(f"{what} must be an object")
+    return v
 
 
 def config_dir() -> Path:
@@ -100,47 +116,82 @@ class ViewerState:
         """Restore from `to_session` output; unknown keys are ignored, bad values raise ValueError."""
         if not isinstance(d, dict) or d.get("npga_view_session") != SESSION_VERSION:
             raise ValueError("not an npga-view session file")
-        self.avatar_path = d.get("avatar")
-        self.sequence_path = d.get("sequence")
-        self.camera = OrbitCamera.from_dict(d.get("camera", {}))
+        paths = {k: d.get(k) for k in ("avatar", "sequence", "rig")}
+        for k, v in paths.items():
+            if v is not None and not (isinstance(v, str) and 0 < len(v) < 4096 and "\0" not in v):
+                raise ValueError(f"'{k}' must be a file path or null")
+        self.avatar_path, self.sequence_path = paths["avatar"], paths["sequence"]
+        cam = _session_dict(d.get("camera", {}), "camera")
+        target = cam.get("target", [0.0, 0.0, 0.0])
+        if not (isinstance(target, list) and len(target) == 3):
+            raise ValueError("camera.target must be 3 numbers")
+        for x in target:
+            _session_number(x, "camera.target")
+        for k, (lo, hi) in {"yaw": (-1e6, 1e6), "pitch": (-1e6, 1e6), "roll": (-1e6, 1e6), "distance": (1e-6, 1e6),
+                            "fov_y": (1.0, 170.0)}.items():
+            if k in cam:
+                _session_number(cam[k], f"camera.{k}", lo, hi)
+        self.camera = OrbitCamera.from_dict(cam)
         mode = d.get("mode", "rgb")
         self.mode = mode if mode in RENDER_MODES else "rgb"
-        bg = [float(v) for v in d.get("background", [0, 0, 0])][:3]
+        bg = d.get("background", [0, 0, 0])
+        if not isinstance(bg, list):
+            raise ValueError("background must be a list of 3 numbers")
+        bg = [_session_number(v, "background", 0.0, 1.0) for v in bg][:3]
         self.background = (bg + [0.0] * 3)[:3]  # type: ignore[assignment]
         self.use_cnn = bool(d.get("use_cnn", True))
-        sl = np.asarray(d.get("sliders", []), np.float32).reshape(-1)
+        sliders = d.get("sliders", [])
+        if not isinstance(sliders, list) or len(sliders) > 4096:
+            raise ValueError("sliders must be a list of at most 4096 numbers")
+        sl = np.asarray([_session_number(v, "sliders") for v in sliders], np.float32).reshape(-1)
         if not np.all(np.isfinite(sl)):
             raise ValueError("session sliders are not finite")
         self.sliders = sl
-        self.n_sliders = int(np.clip(d.get("n_sliders", 10), 1, MAX_SLIDERS))
+        self.n_sliders = int(np.clip(_session_number(d.get("n_sliders", 10), "n_sliders"), 1, MAX_SLIDERS))
         self.follow_sequence = bool(d.get("follow_sequence", True))
-        for k, v in (d.get("timeline") or {}).items():
+        for k, v in _session_dict(d.get("timeline") or {}, "timeline").items():
             if k in Timeline.__dataclass_fields__ and k != "playing":
-                setattr(self.timeline, k, type(getattr(self.timeline, k))(v))
-        self.rig_path = d.get("rig")
-        self.rig_index = int(d.get("rig_index", -1))
+                current = getattr(self.timeline, k)
+                if isinstance(current, bool):
+                    v = bool(v)
+                elif isinstance(current, float):
+                    v = _session_number(v, f"timeline.{k}")
+                elif not isinstance(v, str) or len(v) > 64:
+                    raise ValueError(f"timeline.{k} must be a short string")
+                setattr(self.timeline, k, v)
+        self.rig_path = paths["rig"]
+        self.rig_index = int(_session_number(d.get("rig_index", -1), "rig_index", -1, 4096))
 
     def save_session(self, path: str | Path) -> None:
         text = json.dumps(self.to_session(), indent=1).encode()
         atomic_write(path, lambda fh: fh.write(text))
 
     def load_session(self, path: str | Path) -> None:
+        """Restore a session file (untrusted JSON: regular file, size and depth bounds); AvatarFileError."""
         try:
-            d = json.loads(Path(path).read_text())
-        except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-            raise ValueError(f"{path}: cannot read session ({e})") from None
+            d = read_json(path, MAX_SESSION_BYTES, what="a session file")
+        except OSError as e:
+            raise AvatarFileError(path, f"cannot read session ({e.strerror or e})") from None
         try:
             self.apply_session(d)
-        except (TypeError, ValueError) as e:
-            raise ValueError(f"{path}: {e}") from None
+        except (TypeError, ValueError, OverflowError) as e:
+            raise AvatarFileError(path, str(e)) from None
 
     # -- recent files (per user) ---------------------------------------------------------------------
     def load_recent(self) -> None:
+        """The recent-files list from the config folder; a missing file is an empty list, a broken one is
+        reported (and ignored)."""
+        path = config_dir() / "recent.json"
+        self.recent = []
+        if not os.path.lexists(path):
+            return
         try:
-            data = json.loads((config_dir() / "recent.json").read_text())
-            self.recent = [str(p) for p in data if isinstance(p, str)][:10]
-        except (OSError, ValueError):
-            self.recent = []
+            data = read_json(path, MAX_SESSION_BYTES, what="a recent-files list")
+            if not isinstance(data, list):
+                raise AvatarFileError(path, "expected a list of paths")
+            self.recent = [p for p in data if isinstance(p, str) and len(p) < 4096][:10]
+        except (AvatarFileError, OSError) as e:
+            self.report(str(e))
 
     def save_recent(self) -> None:
         text = json.dumps(self.recent).encode()

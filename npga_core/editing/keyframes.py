@@ -34,11 +34,13 @@ from scipy.spatial.transform import Rotation, Slerp
 from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
+from npga_core.files.untrusted import MAX_IMAGE_SIDE, MAX_JSON_BYTES, MAX_JSON_DEPTH, read_json
 
 FORMAT_VERSION = 1
 INTERPOLATIONS = ("linear", "smooth")
 TRACKS = ("expression", "camera")
 SAME_TIME = 1e-6  # keys closer than this (seconds) are the same key
+MAX_KEYS = 10000  # keys per track read from a file
 
 
 @dataclass
@@ -277,15 +279,9 @@ class KeyframeTimeline:
         """Read a timeline JSON file; AvatarFileError("path: problem") when it is missing or malformed."""
         path = Path(path)
         try:
-            text = path.read_text(encoding="utf-8")
-        except FileNotFoundError:
-            raise AvatarFileError(path, "no such file") from None
-        except (OSError, UnicodeDecodeError) as e:
-            raise AvatarFileError(path, f"cannot read: {getattr(e, 'strerror', None) or e}") from None
-        try:
-            data = json.loads(text, parse_constant=_no_constants)
-        except (json.JSONDecodeError, ValueError) as e:
-            raise AvatarFileError(path, f"not valid JSON ({e})") from None
+            data = read_json(path, MAX_JSON_BYTES, MAX_JSON_DEPTH, "a keyframe file")
+        except OSError as e:
+            raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None
         return KeyframeTimeline.from_dict(data, path)
 
     def check_code_dim(self, dim: int, source: str | Path = "keyframes") -> None:
@@ -299,14 +295,18 @@ class KeyframeTimeline:
 
 
 def _insert(keys: list, key: Key) -> int:
-    for j, k in enumerate(keys):
-        if abs(k.time - key.time) < SAME_TIME:
-            keys[j] = key
-            return j
-    times = [k.time for k in keys]
-    j = bisect.bisect_left(times, key.time)
+    """Insert into the sorted `keys`, replacing a key at the same time; O(log n) search."""
+    j = bisect.bisect_left(keys, key.time - SAME_TIME, key=_time)
+    if j < len(keys) and abs(keys[j].time - key.time) < SAME_TIME:
+        keys[j] = key
+        return j
+    j = bisect.bisect_left(keys, key.time, key=_time)
     keys.insert(j, key)
     return j
+
+
+def _time(key: Key) -> float:
+    return key.time
 
 
 def _check_key(key: Key) -> None:
@@ -320,10 +320,6 @@ def _check_key(key: Key) -> None:
         raise ValueError(f"hold must be a finite number of seconds >= 0, got {key.hold}")
     if isinstance(key, ExpressionKey) and key.interp not in INTERPOLATIONS:
         raise ValueError(f"interp {key.interp!r} is not one of {', '.join(INTERPOLATIONS)}")
-
-
-def _no_constants(name: str) -> None:
-    raise ValueError(f"{name} is not valid JSON")
 
 
 def _number(d: dict, name: str, where: str, default: float | None = None) -> float:
@@ -347,6 +343,8 @@ def _parse(data: object) -> KeyframeTimeline:
         items = data.get(track, [])
         if not isinstance(items, list):
             raise ValueError(f"'{track}' must be a list of keys")
+        if len(items) > MAX_KEYS:
+            raise ValueError(f"'{track}' has {len(items)} keys, more than the {MAX_KEYS} allowed")
         seen: list[float] = []
         for j, item in enumerate(items):
             where = f"{track}[{j}]"
@@ -355,9 +353,10 @@ def _parse(data: object) -> KeyframeTimeline:
             common = {name: _number(item, name, where, 0.0) for name in ("ease_in", "ease_out", "hold")}
             common["label"] = str(item.get("label", ""))
             t = _number(item, "time", where)
-            if any(abs(t - s) < SAME_TIME for s in seen):
+            i = bisect.bisect_left(seen, t - SAME_TIME)
+            if i < len(seen) and abs(seen[i] - t) < SAME_TIME:
                 raise ValueError(f"{where}: two {track} keys at time {t:g}")
-            seen.append(t)
+            bisect.insort(seen, t)
             try:
                 if track == "expression":
                     code = item.get("code")
@@ -369,6 +368,9 @@ def _parse(data: object) -> KeyframeTimeline:
                                       **common)
                 else:
                     cam = Camera.from_dict(item.get("camera"), source="camera")
+                    if max(cam.width, cam.height) > MAX_IMAGE_SIDE:
+                        raise ValueError(f"camera image {cam.width}x{cam.height} is larger than "
+                                         f"{MAX_IMAGE_SIDE} pixels on a side")
                     tl.add_camera(t, cam, **common)
             except ValueError as e:
                 raise ValueError(f"{where}: {e}") from None

@@ -26,6 +26,7 @@ import torch
 from npga_core import __version__
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
+from npga_core.files.untrusted import MAX_JSON_DEPTH, json_depth, open_regular, regular_file
 from npga_core.model.avatar import Avatar
 from npga_core.model.cnn import CNNConfig, ScreenCNN
 from npga_core.model.dynamics import ConditionedMLP, Dynamics, MLPConfig
@@ -239,10 +240,10 @@ def read_header(path: str | Path) -> tuple[dict, int]:
 
 
 def _read_header(path: Path) -> tuple[dict, int]:
-    size = path.stat().st_size
+    size = regular_file(path, "an .npga checkpoint").stat().st_size
     if size == 0:
         raise _Invalid("file is empty")
-    with open(path, "rb") as fh:
+    with open_regular(path, "an .npga checkpoint") as fh:
         magic = fh.read(8)
         if magic != MAGIC[: len(magic)] or len(magic) < 8:
             if magic == MAGIC[: len(magic)]:
@@ -257,6 +258,8 @@ def _read_header(path: Path) -> tuple[dict, int]:
         if 16 + hlen > size:
             raise _Invalid(f"truncated: header needs {16 + hlen} bytes, the file has {size}")
         text = fh.read(hlen)
+    if json_depth(text) > MAX_JSON_DEPTH:
+        raise _Invalid(f"header JSON is nested more than {MAX_JSON_DEPTH} levels deep")
     try:
         header = json.loads(text.decode("utf-8"), parse_constant=_reject_constant, object_pairs_hook=_unique_pairs)
     except UnicodeDecodeError:

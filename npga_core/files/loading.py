@@ -8,13 +8,18 @@ from __future__ import annotations
 
 from pathlib import Path
 
-import numpy as np
-
 from npga_core.errors import AvatarFileError
 from npga_core.files.checkpoint import MAGIC, read_avatar
 from npga_core.files.ply import read_ply
-from npga_core.files.sequences import DEFAULT_FPS, ExpressionSequence, read_npz, validate_sequence
+from npga_core.files.sequences import (
+    DEFAULT_FPS,
+    MAX_SEQUENCE_BYTES,
+    ExpressionSequence,
+    read_npz,
+    validate_sequence,
+)
 from npga_core.files.tracking import load_mononphm_folder
+from npga_core.files.untrusted import open_regular, read_npy, real_floats, regular_file
 from npga_core.model.avatar import Avatar
 
 #: Where the bundled demo avatar lives (repository checkout or editable install).
@@ -34,14 +39,10 @@ def load_avatar(path: str | Path) -> Avatar:
         path = DEMO_AVATAR
     p = Path(path)
     try:
-        with open(p, "rb") as fh:
+        with open_regular(p, "an avatar file") as fh:  # no FIFO, device or directory: nothing read without end
             head = fh.read(len(MAGIC))
-    except FileNotFoundError:
-        raise AvatarFileError(p, "no such file") from None
-    except IsADirectoryError:
-        raise AvatarFileError(p, "is a directory, not an avatar file") from None
     except OSError as e:
-        raise AvatarFileError(p, f"cannot open: {e.strerror or e}") from None
+        raise AvatarFileError(p, f"cannot read: {e.strerror or e}") from None
     if head and MAGIC.startswith(head):  # whole signature, or a file cut inside it
         return read_avatar(p)
     if head.startswith(b"ply"):
@@ -56,21 +57,15 @@ def load_sequence(path: str | Path, fps: float | None = None) -> ExpressionSeque
     path = Path(path)
     if path.is_dir():
         seq = load_mononphm_folder(path)
-    elif not path.exists():
-        raise AvatarFileError(path, "no such file")
     elif path.suffix == ".npy":
-        try:
-            codes = np.load(path, allow_pickle=False)
-        except (ValueError, OSError, EOFError) as e:
-            raise AvatarFileError(path, f"not a readable .npy array ({e})") from None
+        codes = real_floats(read_npy(path, MAX_SEQUENCE_BYTES, "expression codes"), path, "expression codes")
         if codes.ndim == 1:
             codes = codes[None]
         elif codes.ndim == 3 and codes.shape[1] == 1:
             codes = codes[:, 0]
-        if codes.dtype.kind not in "fiu":
-            raise AvatarFileError(path, f"array has dtype {codes.dtype}, expected numbers")
-        seq = ExpressionSequence(np.asarray(codes, np.float32), DEFAULT_FPS, path.stem)
+        seq = ExpressionSequence(codes, DEFAULT_FPS, path.stem)
     else:
+        regular_file(path, "a sequence file")
         seq = read_npz(path)
     if fps is not None:
         seq.fps = float(fps)

@@ -15,6 +15,7 @@ import numpy as np
 
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
+from npga_core.files.untrusted import open_regular, regular_file
 from npga_core.model.gaussians import GaussianCloud, PosedGaussians, logit, sh_coeff_count
 
 _PLY_TYPES = {
@@ -98,10 +99,10 @@ def read_ply(path: str | Path) -> GaussianCloud:
 
 
 def _read_ply(path: Path) -> GaussianCloud:
-    size = path.stat().st_size
+    size = regular_file(path, "a PLY file").stat().st_size
     if size == 0:
         raise _Bad("file is empty")
-    with open(path, "rb") as fh:
+    with open_regular(path, "a PLY file") as fh:
         fmt, elements, header_len = _parse_header(fh)
         if not elements or elements[0][0] != "vertex":
             raise _Bad("the first element is not 'vertex'")

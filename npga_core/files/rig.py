@@ -2,40 +2,60 @@
 
 from __future__ import annotations
 
-import json
 from pathlib import Path
 
 import numpy as np
 
 from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError
+from npga_core.files.untrusted import image_size, json_dict, read_json
+
+#: Most cameras read from one rig file.
+MAX_CAMERAS = 1024
 
 
 def load_rig(path: str | Path) -> dict[str, Camera]:
-    """Cameras by serial. The image size is taken from `image_size` [w, h] if present, else 2*cx x 2*cy."""
+    """Cameras by serial. The image size is taken from `image_size` [w, h] if present, else 2*cx x 2*cy.
+
+    Read as untrusted JSON (regular file, size and depth bounds); image sides must be within
+    `MAX_IMAGE_SIDE`, at most `MAX_CAMERAS` cameras.
+    """
     path = Path(path)
-    try:
-        d = json.loads(path.read_text())
-    except FileNotFoundError:
-        raise AvatarFileError(path, "no such file") from None
-    except (OSError, UnicodeDecodeError, json.JSONDecodeError) as e:
-        raise AvatarFileError(path, f"not a readable JSON camera file ({e})") from None
-    if not isinstance(d, dict) or "world_2_cam" not in d or "intrinsics" not in d:
+    d = json_dict(read_json(path, what="a camera file"), path, "a camera file")
+    if "world_2_cam" not in d or "intrinsics" not in d:
         raise AvatarFileError(path, "expected keys 'world_2_cam' (per serial) and 'intrinsics'")
+    w2c = json_dict(d["world_2_cam"], path, "world_2_cam")
+    if len(w2c) > MAX_CAMERAS:
+        raise AvatarFileError(path, f"{len(w2c)} cameras, more than the {MAX_CAMERAS} allowed")
     try:
-        k = np.asarray(d["intrinsics"], np.float64)
-        if k.shape != (3, 3) or not np.isfinite(k).all():
-            raise ValueError(f"intrinsics must be a 3x3 matrix, got shape {k.shape}")
+        k = _matrix(d["intrinsics"], (3, 3), "intrinsics")
         fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
-        w, h = d.get("image_size") or (int(round(2 * cx)), int(round(2 * cy)))
+        size = d.get("image_size")
+        if size is None:
+            size = (round(2 * cx), round(2 * cy))
+        elif not isinstance(size, list) or len(size) != 2:
+            raise ValueError("image_size must be [width, height]")
+        w, h = image_size(size[0], size[1], path)
         cams = {}
-        for serial, m in d["world_2_cam"].items():
-            cams[str(serial)] = Camera(np.asarray(m, np.float64), fx, fy, cx, cy, int(w), int(h))
-    except (TypeError, ValueError, AttributeError) as e:
+        for serial, m in w2c.items():
+            cams[str(serial)] = Camera(_matrix(m, (4, 4), f"world_2_cam[{serial!r}]"), fx, fy, cx, cy, w, h)
+    except (TypeError, ValueError, AttributeError, OverflowError) as e:
         raise AvatarFileError(path, f"bad camera data: {e}") from None
     if not cams:
         raise AvatarFileError(path, "no cameras in world_2_cam")
     return dict(sorted(cams.items()))
+
+
+def _matrix(value: object, shape: tuple[int, int], what: str) -> np.ndarray:
+    """A finite real matrix of `shape` from parsed JSON (lists of numbers only)."""
+    if not isinstance(value, list) or len(value) != shape[0] or not all(
+            isinstance(row, list) and len(row) == shape[1] and all(
+                isinstance(v, int | float) and not isinstance(v, bool) for v in row) for row in value):
+        raise ValueError(f"{what} must be a {shape[0]}x{shape[1]} matrix of numbers")
+    m = np.asarray(value, np.float64)
+    if not np.isfinite(m).all():
+        raise ValueError(f"{what} has non-finite values")
+    return m
 
 
 def fit_camera(cam: Camera, width: int, height: int) -> Camera:

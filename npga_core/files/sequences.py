@@ -8,7 +8,6 @@ The project's own format, `.npzseq`, is an uncompressed npz (zip of .npy, read w
 from __future__ import annotations
 
 import io
-import zipfile
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -16,9 +15,14 @@ import numpy as np
 
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
+from npga_core.files.untrusted import npz_names, real_floats
+from npga_core.files.untrusted import read_npz as read_npz_arrays
 
 DEFAULT_FPS = 25.0
 CODE_KEYS = ("codes", "expression", "expr", "z_exp", "exp", "expressions")
+POSE_KEYS = ("rotation", "translation", "scale")
+#: Largest sequence file read (all arrays together, as the headers claim them).
+MAX_SEQUENCE_BYTES = 512 * 2**20
 
 
 @dataclass
@@ -88,24 +92,25 @@ def validate_sequence(seq: ExpressionSequence, path: Path) -> ExpressionSequence
 
 
 def read_npz(path: Path) -> ExpressionSequence:
-    try:
-        with np.load(path, allow_pickle=False) as z:
-            keys = list(z.files)
-            key = next((k for k in CODE_KEYS if k in keys), None)
-            if key is None:
-                raise AvatarFileError(path, f"no expression array under any of {', '.join(CODE_KEYS)} "
-                                      f"(keys: {', '.join(keys) or 'none'})")
-            codes = np.asarray(z[key], np.float32)
-            if codes.ndim == 3 and codes.shape[1] == 1:
-                codes = codes[:, 0]
-            fps = float(z["fps"]) if "fps" in keys else DEFAULT_FPS
-            name = str(z["name"]) if "name" in keys else path.stem
-            opt = {k: np.asarray(z[k], np.float32) for k in ("rotation", "translation", "scale") if k in keys}
-            names = [str(s) for s in np.atleast_1d(z["frame_names"])] if "frame_names" in keys else None
-    except AvatarFileError:
-        raise
-    except (ValueError, TypeError, OSError, zipfile.BadZipFile, EOFError, KeyError) as e:
-        raise AvatarFileError(path, f"not a readable npz ({e})") from None
+    """Read `.npzseq`/`.npz` through `untrusted.read_npz`: sizes checked from the headers, real finite numbers."""
+    keys = npz_names(path)
+    key = next((k for k in CODE_KEYS if k in keys), None)
+    if key is None:
+        raise AvatarFileError(path, f"no expression array under any of {', '.join(CODE_KEYS)} "
+                              f"(keys: {', '.join(keys[:20]) or 'none'})")
+    z = read_npz_arrays(path, MAX_SEQUENCE_BYTES, keys=(key, "fps", "name", "frame_names", *POSE_KEYS),
+                        kinds={"name": "US", "frame_names": "US"})
+    codes = real_floats(z[key], path, "expression codes")
+    if codes.ndim == 3 and codes.shape[1] == 1:
+        codes = codes[:, 0]
+    fps = DEFAULT_FPS
+    if "fps" in z:
+        if z["fps"].size != 1:
+            raise AvatarFileError(path, f"fps must be one number, got shape {z['fps'].shape}")
+        fps = float(real_floats(z["fps"], path, "fps", np.float64).reshape(()))
+    name = str(z["name"].reshape(-1)[0]) if "name" in z and z["name"].size == 1 else path.stem
+    opt = {k: real_floats(z[k], path, k) for k in POSE_KEYS if k in z}
+    names = [str(s) for s in np.atleast_1d(z["frame_names"])] if "frame_names" in z else None
     if names is not None and len(names) != codes.shape[0]:
         raise AvatarFileError(path, f"{len(names)} frame names for {codes.shape[0]} frames")
     return ExpressionSequence(codes, fps, name, frame_names=names, **opt)

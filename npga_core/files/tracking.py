@@ -13,7 +13,8 @@ from pathlib import Path
 import numpy as np
 
 from npga_core.errors import AvatarFileError
-from npga_core.files.sequences import DEFAULT_FPS, ExpressionSequence
+from npga_core.files.sequences import DEFAULT_FPS, MAX_SEQUENCE_BYTES, ExpressionSequence
+from npga_core.files.untrusted import read_npy, real_floats
 
 
 def _frame_dirs(root: Path) -> list[tuple[int, Path]]:
@@ -25,13 +26,8 @@ def _frame_dirs(root: Path) -> list[tuple[int, Path]]:
 
 
 def _load(path: Path) -> np.ndarray:
-    try:
-        a = np.load(path, allow_pickle=False)
-    except (ValueError, OSError, EOFError) as e:
-        raise AvatarFileError(path, f"not a readable .npy array ({e})") from None
-    if a.dtype.kind not in "fiu":
-        raise AvatarFileError(path, f"array has dtype {a.dtype}, expected numbers")
-    return np.asarray(a, np.float32)
+    """One tracked array: size checked from the .npy header, real finite numbers as float32."""
+    return real_floats(read_npy(path, MAX_SEQUENCE_BYTES, path.stem), path, path.stem)
 
 
 def _row(path: Path, t_index: int, n_frames: int, width: int | None) -> np.ndarray:

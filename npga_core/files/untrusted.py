@@ -251,6 +251,21 @@ def read_npz(path: str | Path, max_bytes: int, keys: Iterable[str] | None = None
     return out
 
 
+def npz_names(path: str | Path, max_members: int = MAX_NPZ_MEMBERS) -> list[str]:
+    """The array names in an `.npz` (member names without `.npy`), read from the zip directory only."""
+    p = Path(path)
+    try:
+        with open_regular(p, "an .npz archive") as fh, zipfile.ZipFile(fh) as zf:
+            names = zf.namelist()
+    except AvatarFileError:
+        raise
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, NotImplementedError, RuntimeError) as e:
+        raise AvatarFileError(p, f"not a readable npz ({e})") from None
+    if len(names) > max_members:
+        raise AvatarFileError(p, f"has {len(names)} members, more than the {max_members} allowed")
+    return [n[:-4] if n.endswith(".npy") else n for n in names]
+
+
 def real_floats(arr: Any, path: str | Path, what: str, dtype: Any = np.float32) -> np.ndarray:
     """`arr` as finite real floats of `dtype`; AvatarFileError for complex, non-numeric, NaN/Inf or overflow."""
     a = np.asarray(arr) if not isinstance(arr, np.ndarray) else arr

@@ -22,11 +22,15 @@ from pathlib import Path
 import numpy as np
 import torch
 
+from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
+from npga_core.files.untrusted import file_size, json_dict, json_int, open_regular, parse_json
 
 BAKE_MAGIC = b"NPGABAKE"
 BAKE_FORMAT = 1
 _ALIGN = 64
+_MAX_HEADER = 1 << 16  # bytes of a cache file's JSON header
+_MAX_FRAMES = 10**7  # frames of a cached sequence
 
 
 def bake_key(avatar_key: str, codes: np.ndarray, bits: int, budget_bytes: int) -> str:
@@ -149,29 +153,51 @@ class BakeStore:
         atomic_write(path, write)
 
     @staticmethod
-    def open(path: str | Path, key: str) -> BakeStore | None:
-        """The cached bake at `path` (memory-mapped) if it holds content `key`, else None."""
+    def open(path: str | Path, key: str, rows: int | None = None, width: int | None = None) -> BakeStore | None:
+        """The cached bake at `path` (memory-mapped) if it holds content `key` (and `rows` x `width` offsets
+        per frame, when given), else None.
+
+        The cache is untrusted (`npga_core.files.untrusted`): a regular file only, header size and depth
+        bounded, shape, dtype and frame counts checked against the file size; anything wrong is a miss (None).
+        """
         path = Path(path)
         try:
-            with open(path, "rb") as fh:
+            with open_regular(path, "a bake cache") as fh:
                 if fh.read(len(BAKE_MAGIC)) != BAKE_MAGIC:
                     return None
                 hlen = int.from_bytes(fh.read(8), "little")
-                header = json.loads(fh.read(hlen))
+                if hlen > _MAX_HEADER:
+                    return None
+                header = json_dict(parse_json(fh.read(hlen), path, max_depth=4), path, "bake header")
+                size = file_size(fh) or 0
             if header.get("format") != BAKE_FORMAT or header.get("key") != key:
                 return None
-            stored, rows, width = (int(v) for v in header["shape"])
+            shape, dtype = header.get("shape"), header.get("dtype")
+            if dtype not in ("|u1", "<u2") or not isinstance(shape, list) or len(shape) != 3:
+                return None
+            stored, n_rows, n_width = (json_int(v, path, "bake shape", 1, 2**40) for v in shape)
+            frames = json_int(header.get("frames"), path, "bake frames", 1, _MAX_FRAMES)
+            stride = json_int(header.get("stride"), path, "bake stride", 1, _MAX_FRAMES)
+            if _stored_count(frames, stride) != stored or (n_rows, n_width) != (rows or n_rows, width or n_width):
+                return None
             start = len(BAKE_MAGIC) + 8 + hlen
-            lo = np.fromfile(path, np.float32, stored * width, offset=start).reshape(stored, width)
-            step = np.fromfile(path, np.float32, stored * width, offset=start + lo.nbytes).reshape(stored, width)
-            data = np.memmap(path, np.dtype(header["dtype"]), "r", start + 2 * lo.nbytes, (stored, rows, width))
-            store = BakeStore(key, int(header["frames"]), int(header["stride"]), data, lo, step,
-                              np.ones(stored, bool))
-        except (OSError, ValueError, KeyError, TypeError):
-            return None
-        if len(store.stored_frames) != stored:
+            table = stored * n_width * 4
+            if start + 2 * table + stored * n_rows * n_width * np.dtype(dtype).itemsize > size:
+                return None  # truncated (or a header claiming more than the file holds)
+            lo = np.fromfile(path, np.float32, stored * n_width, offset=start).reshape(stored, n_width)
+            step = np.fromfile(path, np.float32, stored * n_width, offset=start + table).reshape(stored, n_width)
+            if not (np.isfinite(lo).all() and np.isfinite(step).all()):
+                return None
+            data = np.memmap(path, np.dtype(dtype), "r", start + 2 * table, (stored, n_rows, n_width))
+            store = BakeStore(key, frames, stride, data, lo, step, np.ones(stored, bool))
+        except (AvatarFileError, OSError, ValueError, KeyError, TypeError, MemoryError):
             return None
         return store
+
+
+def _stored_count(frames: int, stride: int) -> int:
+    """len(_stored_frames(frames, stride)) without building the list."""
+    return (frames - 1) // stride + 1 + (1 if (frames - 1) % stride else 0)
 
 
 def _stored_frames(frames: int, stride: int) -> list[int]:

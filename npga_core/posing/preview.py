@@ -31,10 +31,13 @@ import torch
 from scipy.sparse import csr_matrix
 from scipy.spatial import cKDTree
 
+from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
+from npga_core.files.untrusted import json_dict, json_int, parse_json, read_npz, real_floats
 from npga_core.posing.fastpose import FastPoser
 
 PREVIEW_FORMAT = 1
+MAX_CACHED_NEIGHBOURS = 64  # probes per Gaussian accepted from a cache file
 
 
 @dataclass
@@ -108,19 +111,33 @@ class PreviewModel:
 
     @staticmethod
     def load(path: str | Path, key: str, n: int) -> PreviewModel | None:
-        """The model stored at `path` if it was built for content `key` with `n` Gaussians, else None."""
+        """The model stored at `path` if it was built for content `key` with `n` Gaussians, else None.
+
+        The cache is untrusted (`npga_core.files.untrusted.read_npz`: regular file, sizes from the headers
+        within a budget for `n` Gaussians, numbers only); indices out of range or non-finite weights are a miss.
+        """
+        budget = 4096 + n * (8 * 2 * MAX_CACHED_NEIGHBOURS + 16)
         try:
-            with np.load(Path(path)) as f:
-                meta = json.loads(bytes(f["meta"]).decode())
-                if meta.get("format") != PREVIEW_FORMAT or meta.get("key") != key:
-                    return None
-                model = PreviewModel(f["probes"].astype(np.int64), f["neighbours"].astype(np.int64),
-                                     f["weights"].astype(np.float32),
-                                     f["sensitivity"] if "sensitivity" in f.files else None,
-                                     int(meta.get("fitted_codes", 0)), key)
-        except (OSError, ValueError, KeyError):
-            return None
-        if model.neighbours.shape[0] != n or model.weights.shape != model.neighbours.shape:
+            f = read_npz(path, budget, keys=("probes", "neighbours", "weights", "sensitivity", "meta"), max_members=8)
+            meta = json_dict(parse_json(f["meta"].astype(np.uint8).tobytes(), path, max_depth=4), path, "meta")
+            if meta.get("format") != PREVIEW_FORMAT or meta.get("key") != key:
+                return None
+            probes, neighbours, weights = f["probes"], f["neighbours"], f["weights"]
+            if (probes.ndim != 1 or not 1 <= probes.size <= n or probes.dtype.kind not in "iu"
+                    or neighbours.ndim != 2 or neighbours.shape[0] != n or neighbours.dtype.kind not in "iu"
+                    or not 1 <= neighbours.shape[1] <= MAX_CACHED_NEIGHBOURS or weights.shape != neighbours.shape):
+                return None
+            if (probes.min() < 0 or probes.max() >= n or (np.diff(probes) <= 0).any() or neighbours.min() < 0
+                    or neighbours.max() >= probes.size):
+                return None
+            sens = f.get("sensitivity")
+            if sens is not None and sens.shape != (n,):
+                return None
+            model = PreviewModel(probes.astype(np.int64), neighbours.astype(np.int64),
+                                 real_floats(weights, path, "weights"),
+                                 None if sens is None else real_floats(sens, path, "sensitivity"),
+                                 json_int(meta.get("fitted_codes", 0), path, "fitted_codes", 0, 2**20), key)
+        except (AvatarFileError, OSError, ValueError, KeyError):
             return None
         return model
 

@@ -137,10 +137,15 @@ def _camera(args, framing_points: np.ndarray) -> Camera:
         if value is not None and not 1 <= value <= 16384:
             raise RenderError(f"--{name} {value}: must be in 1..16384")
     if args.camera is not None:
-        try:
-            cam = Camera.from_json(args.camera)
+        from npga_core.files.untrusted import MAX_IMAGE_SIDE, read_json
+
+        try:  # untrusted JSON: regular file, size and depth bounds, image sides GL can allocate
+            cam = Camera.from_dict(read_json(args.camera, what="a camera file"), source=str(args.camera))
         except ValueError as exc:
             raise RenderError(str(exc)) from None
+        if max(cam.width, cam.height) > MAX_IMAGE_SIDE:
+            raise RenderError(f"{args.camera}: image {cam.width}x{cam.height} is larger than {MAX_IMAGE_SIDE} "
+                              "pixels on a side")
         if args.width or args.height:
             cam = cam.resized(args.width or cam.width, args.height or cam.height)
         return cam

@@ -9,6 +9,7 @@ from __future__ import annotations
 
 import datetime as _dt
 import json
+import os
 from collections.abc import Callable
 from pathlib import Path
 
@@ -17,10 +18,11 @@ import numpy as np
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
 from npga_core.files.rig import load_rig
+from npga_core.files.untrusted import json_dict, json_number, read_json
 from npga_view.controllers.bake import BakeController
 from npga_view.controllers.host import ViewerHost
 from npga_view.controllers.posing import PoseController
-from npga_view.state import config_dir
+from npga_view.state import MAX_SESSION_BYTES, config_dir
 
 
 class ActionController:
@@ -130,13 +132,29 @@ class ActionController:
         return config_dir() / "presets.json"
 
     def load_presets(self) -> None:
-        """The user's saved expression presets (none if the file is missing or unreadable)."""
+        """The user's saved expression presets (none if the file is missing; a broken file is reported)."""
+        st, path = self.host.state, self.presets_file()
+        st.presets = {}
+        if not os.path.lexists(path):
+            return
         try:
-            d = json.loads(self.presets_file().read_text())
-            self.host.state.presets = {str(k): [float(x) for x in v] for k, v in d.items()}
-        except (OSError, ValueError, TypeError, AttributeError):
-            self.host.state.presets = {}
+            st.presets = read_presets(path)
+        except AvatarFileError as e:
+            st.report(str(e))
 
     def save_presets(self) -> None:
         text = json.dumps(self.host.state.presets).encode()
         atomic_write(self.presets_file(), lambda fh: fh.write(text))
+
+
+def read_presets(path: str | Path) -> dict[str, list[float]]:
+    """Expression presets {name: code} from untrusted JSON (bounded; finite numbers only); AvatarFileError."""
+    d = json_dict(read_json(path, MAX_SESSION_BYTES, what="a presets file"), path, "presets")
+    if len(d) > 10000:
+        raise AvatarFileError(path, f"{len(d)} presets, more than the 10000 allowed")
+    out = {}
+    for name, code in d.items():
+        if not isinstance(code, list) or not code or len(code) > 4096:
+            raise AvatarFileError(path, f"preset {name[:40]!r} must be a list of 1..4096 numbers")
+        out[name] = [json_number(v, path, f"preset {name[:40]!r}") for v in code]
+    return out
