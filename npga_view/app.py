@@ -521,7 +521,14 @@ class ViewerApp:
         self.actions.load_session(path)
 
     def _toggle_recording(self) -> None:
-        self.info.recording = self.recorder.toggle(self._viewport()[2:])
+        try:
+            self.info.recording = self.recorder.toggle(self._viewport()[2:])
+        except (OSError, ValueError) as e:
+            self.info.recording = False
+            self.state.report(f"Record MP4: {e}")
+        if self.recorder.error:
+            self.state.report(f"Record MP4: {self.recorder.error}")
+            self.recorder.error = None
         self.record_path = self.recorder.path
 
     # ------------------------------------------------------------------------------------------ loop

@@ -309,21 +309,35 @@ def test_drop_files_and_rig_cameras(app, avatar_path, tmp_path):
 
 
 def test_record_viewport_to_mp4(app, avatar_path, tmp_path, monkeypatch):
-    import cv2
+    """Record MP4 writes H.264 whose frames carry the wall-clock times they were drawn at (read back with PyAV)."""
+    import av
 
     monkeypatch.chdir(tmp_path)
     assert app.open_avatar(avatar_path)
     settle(app)
+    started = time.perf_counter()
     app.state.actions.append(("record", None))
-    for _ in range(8):
+    app.step()  # starts recording and records this frame
+    for _ in range(6):
+        time.sleep(0.15)  # a UI at well under 25 fps: the video must last as long as the recording did
         app.state.camera.orbit(3, 0)
         app.step()
+    time.sleep(0.15)
     app.state.actions.append(("record", None))
-    app.step()
-    cap = cv2.VideoCapture(str(tmp_path / app.record_path))
-    n = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-    ok, frame = cap.read()
-    assert ok and n >= 7 and frame.std() > 5
+    app.step()  # stops before this frame is drawn
+    elapsed = time.perf_counter() - started
+    assert not app.info.recording and app.recorder.error is None and not app.state.errors
+    with av.open(str(tmp_path / app.record_path)) as c:
+        stream = c.streams.video[0]
+        assert stream.codec_context.name == "h264" and stream.codec_context.pix_fmt == "yuv420p"
+        frames = list(c.decode(stream))
+        duration = float(stream.duration * stream.time_base)
+    assert len(frames) == 7 == app.recorder.frames and app.recorder.dropped == 0
+    times = [float(f.time) for f in frames]
+    assert times[0] == 0.0 and min(np.diff(times)) >= 0.15 - 1e-3
+    assert 7 * 0.15 - 1e-3 <= duration <= elapsed
+    first, last = frames[0].to_ndarray(format="rgb24"), frames[-1].to_ndarray(format="rgb24")
+    assert first.std() > 5 and np.abs(first.astype(int) - last.astype(int)).mean() > 1  # the orbit shows
 
 
 def _key(app, key, ctrl=False):

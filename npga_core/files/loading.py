@@ -10,6 +10,7 @@ from pathlib import Path
 
 from npga_core.errors import AvatarFileError
 from npga_core.files.checkpoint import MAGIC, read_avatar
+from npga_core.files.places import bundled_path
 from npga_core.files.ply import read_ply
 from npga_core.files.sequences import (
     DEFAULT_FPS,
@@ -22,8 +23,8 @@ from npga_core.files.tracking import load_mononphm_folder
 from npga_core.files.untrusted import open_regular, read_npy, real_floats, regular_file
 from npga_core.model.avatar import Avatar
 
-#: Where the bundled demo avatar lives (repository checkout or editable install).
-DEMO_DIR = Path(__file__).resolve().parents[2] / "assets" / "demo"
+#: Where the bundled demo avatar lives: package data (the repository's assets/demo), whatever the install.
+DEMO_DIR = bundled_path("demo")
 DEMO_AVATAR = DEMO_DIR / "avatar.npga"
 
 

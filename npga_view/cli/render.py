@@ -478,23 +478,18 @@ def _render(args) -> int:
             print(json.dumps(frames.counts))
         return 0
 
-    import cv2
+    from npga_view.video import VideoWriter
 
+    # H.264 MP4 at the sequence's (or --timeline's --fps) rate; odd sizes lose their last row/column (yuv420p)
     legend = LEGEND_HEIGHT if frames.inspecting and frames.legend else 0
-    writer = cv2.VideoWriter(str(out), cv2.VideoWriter_fourcc(*"mp4v"), float(fps),
-                             (camera.width, camera.height + legend))
-    if not writer.isOpened():
-        raise RenderError(f"{out}: could not open an mp4v video writer")
     started = time.perf_counter()
-    try:
+    with VideoWriter(out, camera.width, camera.height + legend, fps=float(fps)) as writer:
         for i, code in enumerate(codes):
             if cameras is not None:
                 frames.camera = cameras[i]
             _, picture = frames.render(code)
-            writer.write(np.ascontiguousarray(picture[..., ::-1]))
+            writer.write(picture)
             _progress(i + 1, len(codes), started)
-    finally:
-        writer.release()
     return 0
 
 

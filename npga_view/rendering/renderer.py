@@ -48,6 +48,7 @@ Inspection (see npga_core/inspect.py for the colour modes, which only replace th
 
 from __future__ import annotations
 
+import importlib.resources
 import math
 import re
 import time
@@ -67,7 +68,8 @@ from npga_view.rendering.sorting import sort_back_to_front, view_depths
 if TYPE_CHECKING:
     from npga_core.inspection.inspector import InspectFrame
 
-SHADER_DIR = Path(__file__).resolve().parents[2] / "shaders"
+#: The GLSL sources: the repository's shaders/, installed as the package data `npga_view.shaders`.
+SHADER_DIR = Path(str(importlib.resources.files("npga_view.shaders")))
 NEAR = 0.01
 _GROUP = 128
 _INCLUDE = re.compile(r'^#include\s+"([^"]+)"\s*$', re.MULTILINE)
