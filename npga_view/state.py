@@ -16,6 +16,7 @@ import numpy as np
 from npga_core.camera.orbit import OrbitCamera
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
+from npga_core.files.places import user_config_dir
 from npga_core.files.untrusted import read_json
 from npga_core.inspection.inspector import InspectSettings
 
@@ -39,9 +40,8 @@ def _session_dict(v: object, what: str) -> dict:
 
 
 def config_dir() -> Path:
-    """Per-user settings folder (recent files, presets)."""
-    base = os.environ.get("XDG_CONFIG_HOME") or os.path.join(os.path.expanduser("~"), ".config")
-    return Path(base) / "npga-view"
+    """Per-user settings folder (recent files, presets): the platform's own (`npga_core.files.places`)."""
+    return user_config_dir()
 
 
 @dataclass

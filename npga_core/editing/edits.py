@@ -43,6 +43,7 @@ from npga_core.editing.selection import (
     in_sphere,
     shrink,
 )
+from npga_core.files.places import user_cache_dir
 from npga_core.inspection.graph import knn
 from npga_core.model.avatar import Avatar
 from npga_core.model.gaussians import PER_GAUSSIAN_FIELDS, SH_C0, GaussianCloud, logit, sigmoid
@@ -393,9 +394,9 @@ class History:
 
 
 def autosave_dir() -> Path:
-    """`$XDG_CACHE_HOME/npga-view/autosave` (default `~/.cache/...`)."""
-    base = os.environ.get("XDG_CACHE_HOME") or os.path.join(os.path.expanduser("~"), ".cache")
-    return Path(base) / "npga-view" / "autosave"
+    """The `autosave` folder in the platform's user cache folder (Linux: `$XDG_CACHE_HOME/npga-view/autosave`,
+    default `~/.cache/...`; see `npga_core.files.places`)."""
+    return user_cache_dir("autosave")
 
 
 def autosave_path_for(source: str | Path | None) -> Path:

@@ -24,6 +24,7 @@ import torch
 
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
+from npga_core.files.places import cache_folder_for
 from npga_core.files.untrusted import file_size, json_dict, json_int, open_regular, parse_json
 
 BAKE_MAGIC = b"NPGABAKE"
@@ -43,9 +44,10 @@ def bake_key(avatar_key: str, codes: np.ndarray, bits: int, budget_bytes: int) -
 
 
 def cache_path(avatar_path: str | Path, key: str, cache_dir: str | Path | None = None) -> Path:
-    """Where the bake of `key` is cached: next to the avatar, or in `cache_dir`."""
+    """Where the bake of `key` is cached: in `cache_dir`, else next to the avatar when its folder is writable
+    and not the bundled demo, else in the user cache folder's `bakes/`."""
     p = Path(avatar_path)
-    folder = Path(cache_dir) if cache_dir is not None else p.parent
+    folder = Path(cache_dir) if cache_dir is not None else cache_folder_for(p, "bakes")
     return folder / f"{p.name}.bake-{key[:20]}.npgabake"
 
 

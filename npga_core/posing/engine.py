@@ -28,7 +28,6 @@ from __future__ import annotations
 import contextlib
 import multiprocessing as mp
 import queue
-import resource
 import time
 import traceback
 from dataclasses import asdict, dataclass
@@ -148,6 +147,10 @@ def peak_rss_mb() -> float:
                     return int(line.split()[1]) / 1024.0
     except OSError:
         pass
+    try:
+        import resource  # POSIX only (absent on Windows)
+    except ImportError:
+        return 0.0
     return resource.getrusage(resource.RUSAGE_SELF).ru_maxrss / 1024.0
 
 

@@ -33,6 +33,7 @@ from scipy.spatial import cKDTree
 
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
+from npga_core.files.places import cache_folder_for
 from npga_core.files.untrusted import json_dict, json_int, parse_json, read_npz, real_floats
 from npga_core.posing.fastpose import FastPoser
 
@@ -144,9 +145,10 @@ class PreviewModel:
 
 def preview_cache_path(avatar_path: str | Path, key: str, probes: int, k: int, fit_codes: int,
                        cache_dir: str | Path | None = None) -> Path:
-    """Where the fitted preview model of an avatar is cached: next to it, or in `cache_dir`."""
+    """Where the fitted preview model of an avatar is cached: in `cache_dir`, else next to the avatar when its
+    folder is writable and not the bundled demo, else in the user cache folder's `previews/`."""
     p = Path(avatar_path)
-    folder = Path(cache_dir) if cache_dir is not None else p.parent
+    folder = Path(cache_dir) if cache_dir is not None else cache_folder_for(p, "previews")
     return folder / f"{p.name}.preview-{key[:20]}-{probes}-{k}-{fit_codes}.npz"
 
 
