@@ -11,12 +11,12 @@ from npga_core.camera.cameras import frame_points, look_at
 from npga_core.errors import AvatarFileError
 from npga_core.files.loading import load_sequence
 from npga_core.files.sequences import ExpressionSequence
-from npga_core.files.tracking import _matrix_to_axis_angle
+from npga_core.model.rotations import matrix_from_rotvec
 from npga_core.model.sh import rotate_sh
 from npga_core.posing.headpose import (
-    axis_angle_matrix,
     has_head_pose,
     head_transform,
+    pose_description,
     pose_matrix,
     posed_camera,
     transform_posed,
@@ -35,12 +35,17 @@ def renderer(ctx):
     r.release()
 
 
-def _sequence(t: int = 5) -> ExpressionSequence:
+def _pose_parts(t: int = 5) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     rng = np.random.default_rng(3)
-    return ExpressionSequence(np.zeros((t, 4), np.float32), 25.0, "nod",
-                              rotation=(0.3 * rng.standard_normal((t, 3))).astype(np.float32),
-                              translation=(0.05 * rng.standard_normal((t, 3))).astype(np.float32),
-                              scale=rng.uniform(0.9, 1.1, t).astype(np.float32))
+    return ((0.3 * rng.standard_normal((t, 3))).astype(np.float32),
+            (0.05 * rng.standard_normal((t, 3))).astype(np.float32), rng.uniform(0.9, 1.1, t).astype(np.float32))
+
+
+def _sequence(t: int = 5) -> ExpressionSequence:
+    """A sequence whose pose is given as rotation (axis-angle), translation and scale: x_world = s R x + t."""
+    rotation, translation, scale = _pose_parts(t)
+    return ExpressionSequence(np.zeros((t, 4), np.float32), 25.0, "nod", rotation=rotation,
+                              translation=translation, scale=scale)
 
 
 def _avatar_with_sequence(folder, n: int, t: int):
@@ -57,35 +62,29 @@ def _avatar_with_sequence(folder, n: int, t: int):
     return avatar, path, seq
 
 
-def test_rotation_matrix_is_rodrigues():
-    v = np.array([0.3, -1.1, 0.4])
-    r = axis_angle_matrix(v)
-    np.testing.assert_allclose(r @ r.T, np.eye(3), atol=1e-12)
-    assert np.linalg.det(r) == pytest.approx(1.0)
-    np.testing.assert_allclose(r @ v, v, atol=1e-12)  # the axis stays
-    np.testing.assert_allclose(_matrix_to_axis_angle(r[None])[0], v, atol=1e-6)  # the tracking reader's inverse
-    quarter = axis_angle_matrix([0.0, 0.0, np.pi / 2])
-    np.testing.assert_allclose(quarter @ [1.0, 0.0, 0.0], [0.0, 1.0, 0.0], atol=1e-12)
-
-
 def test_pose_matrix_and_relative_transform():
     seq = _sequence()
+    rotation, translation, scale = _pose_parts()
     x = np.array([0.1, -0.2, 0.3])
-    m = pose_matrix(seq.rotation[2], seq.translation[2], float(seq.scale[2]))
-    want = seq.scale[2] * axis_angle_matrix(seq.rotation[2]) @ x + seq.translation[2]
+    m = pose_matrix(rotation[2], translation[2], float(scale[2]))
+    want = scale[2] * matrix_from_rotvec(rotation[2]) @ x + translation[2]
     np.testing.assert_allclose((m @ np.append(x, 1.0))[:3], want, atol=1e-6)
+    np.testing.assert_allclose(seq.pose[2], m, atol=1e-12)
     np.testing.assert_allclose(head_transform(seq, 0), np.eye(4), atol=1e-12)
     np.testing.assert_allclose(head_transform(seq, 2, relative=False), m)
     t0 = head_transform(seq, 0, relative=False)
     np.testing.assert_allclose(t0 @ head_transform(seq, 3), head_transform(seq, 3, relative=False), atol=1e-12)
     assert has_head_pose(seq) and not has_head_pose(ExpressionSequence(seq.codes)) and not has_head_pose(None)
+    assert pose_description(seq) == "x_world = s R x + t (rotation axis-angle)"
 
 
 def test_only_rotation_is_a_pose():
     seq = ExpressionSequence(np.zeros((2, 3), np.float32), rotation=np.array([[0, 0, 0], [0, 0.5, 0]], np.float32))
     m = head_transform(seq, 1)
-    np.testing.assert_allclose(m[:3, :3], axis_angle_matrix([0, 0.5, 0]))
+    np.testing.assert_allclose(m[:3, :3], matrix_from_rotvec([0, 0.5, 0]))
     np.testing.assert_allclose(m[:3, 3], 0.0)
+    with pytest.raises(ValueError, match="not both"):
+        ExpressionSequence(seq.codes, rotation=np.zeros((2, 3)), pose=seq.pose)
 
 
 def test_moved_camera_renders_the_moved_gaussians(renderer):
@@ -100,7 +99,7 @@ def test_moved_camera_renders_the_moved_gaussians(renderer):
     renderer.set_gaussians(g)
     image = renderer.render(posed_camera(cam, t))
 
-    r = axis_angle_matrix(rotation)
+    r = matrix_from_rotvec(rotation)
     angle = np.linalg.norm(rotation)
     w, (x, y, z) = np.cos(angle / 2), np.sin(angle / 2) * rotation / angle
     q = g.quats.astype(np.float64)  # q_moved = q_R * q (Hamilton product, w first)
@@ -125,11 +124,14 @@ def test_moved_camera_renders_the_moved_gaussians(renderer):
 
 
 def test_bad_scale_is_refused(tmp_path):
-    seq = _sequence()
-    seq.scale[1] = 0.0
-    seq.save(tmp_path / "s.npzseq")
-    with pytest.raises(AvatarFileError, match="scale must be positive"):
+    """An .npzseq written before the 4x4 pose (rotation/translation/scale arrays) with a zero scale."""
+    rotation, translation, scale = _pose_parts()
+    scale[1] = 0.0
+    with open(tmp_path / "s.npzseq", "wb") as fh:  # np.savez would append .npz to a path
+        np.savez(fh, codes=np.zeros((5, 4), np.float32), rotation=rotation, translation=translation, scale=scale)
+    with pytest.raises(AvatarFileError, match="scale must be finite and positive .frame 1 is 0") as e:
         load_sequence(tmp_path / "s.npzseq")
+    assert "\n" not in str(e.value) and str(tmp_path / "s.npzseq") in str(e.value)
 
 
 def test_render_cli_head_pose(tmp_path, capsys):
@@ -170,7 +172,7 @@ def test_rotate_sh_turns_the_colour_with_the_head():
     """colour'(R d) = colour(d) for degree-3 SH, evaluated by the reference rasterizer's own SH code."""
     rng = np.random.default_rng(5)
     sh = (0.3 * rng.standard_normal((50, 16, 3))).astype(np.float32)
-    r = axis_angle_matrix([0.4, -0.9, 0.3])
+    r = matrix_from_rotvec([0.4, -0.9, 0.3])
     d = rng.standard_normal((50, 3))
     d /= np.linalg.norm(d, axis=1, keepdims=True)
     turned = rotate_sh(sh, r)

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import numpy as np
 import pytest
+from scipy.spatial.transform import Rotation
 
 from npga_core.errors import AvatarFileError
 from npga_core.files.loading import load_sequence
@@ -19,8 +20,12 @@ def test_own_format_round_trip(tmp_path):
     seq.save(tmp_path / "s.npzseq")
     back = load_sequence(tmp_path / "s.npzseq")
     assert np.array_equal(back.codes, seq.codes) and back.fps == 30.0 and back.name == "talk"
-    assert np.array_equal(back.rotation, seq.rotation) and back.frame_names == seq.frame_names
+    assert np.array_equal(back.pose, seq.pose) and back.frame_names == seq.frame_names
+    assert back.pose.shape == (30, 4, 4)
+    assert back.pose_source == seq.pose_source == "x_world = s R x + t (rotation axis-angle)"
     assert back.duration == pytest.approx(1.0)
+    with np.load(tmp_path / "s.npzseq") as z:  # the 4x4 is what is written
+        assert {"pose", "pose_source"} <= set(z.files) and not {"rotation", "translation", "scale"} & set(z.files)
 
 
 @pytest.mark.parametrize("key", ["expression", "expr", "z_exp"])
@@ -38,14 +43,17 @@ def test_plain_npy(tmp_path):
 
 
 def _mononphm(root, stage, t=4, d=100):
+    """Frame folders as MonoNPHM's Tracker.rec_and_save writes them (src/mononphm/photometric_tracking/
+    tracking.py L1236-1261): z_exp.npy the frame's (1, D) row in stage 1, the whole (T, D) table in stage 2
+    (L1239); rot.npy so3_exp_map of an axis-angle, (1, 3, 3); trans.npy (1, 3); scale.npy (1,)."""
     table = np.random.default_rng(1).standard_normal((t, d)).astype(np.float32)
     for i in range(t):
         f = root / f"{i:05d}"
         f.mkdir(parents=True)
         np.save(f / "z_exp.npy", table[i : i + 1] if stage == 1 else table)
-        np.save(f / "rot.npy", np.full((1, 3), i, np.float32) if stage == 1 else np.full((t, 3), 7, np.float32))
-        np.save(f / "trans.npy", np.zeros((1, 3), np.float32) if stage == 1 else np.zeros((t, 3), np.float32))
-        np.save(f / "scale.npy", np.ones((1, 1), np.float32) if stage == 1 else np.ones((t, 1), np.float32))
+        np.save(f / "rot.npy", Rotation.from_rotvec([0.0, 0.1 * i, 0.0]).as_matrix()[None].astype(np.float32))
+        np.save(f / "trans.npy", np.full((1, 3), 0.01 * i, np.float32))
+        np.save(f / "scale.npy", np.full((1,), 1.1, np.float32))
     return table
 
 
@@ -53,10 +61,11 @@ def _mononphm(root, stage, t=4, d=100):
 def test_mononphm_folders(tmp_path, stage):
     table = _mononphm(tmp_path / "track", stage)
     s = load_sequence(tmp_path / "track")
-    assert np.array_equal(s.codes, table)
-    assert s.rotation.shape == (4, 3) and s.scale.shape == (4,) and s.translation.shape == (4, 3)
-    if stage == 1:
-        assert np.array_equal(s.rotation[:, 0], np.arange(4))
+    assert np.array_equal(s.codes, table) and s.frame_names == ["00000", "00001", "00002", "00003"]
+    assert s.pose.shape == (4, 4, 4) and s.pose_source.startswith("MonoNPHM")
+    # the world -> NPHM pose inverted: frame i turns by -0.1 i about y, scaled by 1 / 1.1
+    np.testing.assert_allclose(s.pose[:, :3, :3] * 1.1,
+                               Rotation.from_rotvec(np.outer(-0.1 * np.arange(4), [0, 1, 0])).as_matrix(), atol=1e-6)
 
 
 def test_bad_sequences(tmp_path):
@@ -88,8 +97,10 @@ def test_mononphm_rotation_matrices_with_three_frames(tmp_path):
         a = 0.1 * (i + 1)
         rot = np.array([[1, 0, 0], [0, math.cos(a), -math.sin(a)], [0, math.sin(a), math.cos(a)]], np.float32)
         np.save(f / "rot.npy", rot)
-    s = load_sequence(tmp_path / "t")
-    np.testing.assert_allclose(s.rotation, [[0.1, 0, 0], [0.2, 0, 0], [0.3, 0, 0]], atol=1e-5)
+    s = load_sequence(tmp_path / "t")  # (3, 3) matrices, no trans.npy or scale.npy: those are the identity
+    np.testing.assert_allclose(Rotation.from_matrix(s.pose[:, :3, :3]).as_rotvec(),
+                               [[-0.1, 0, 0], [-0.2, 0, 0], [-0.3, 0, 0]], atol=1e-6)
+    np.testing.assert_allclose(s.pose[:, :3, 3], 0.0)
 
 
 def test_npz_with_bad_fps_or_names_is_a_clean_error(tmp_path):

@@ -14,6 +14,7 @@ from scipy.spatial import cKDTree
 
 from npga_core.demo.ict import LIMBUS_ANGLE, PART_NAMES, IctHead
 from npga_core.inspection.graph import knn
+from npga_core.model.rotations import quat_from_matrix
 
 #: Relative sample density (samples per area) of each part; parts not listed are not sampled.
 DEFAULT_DENSITY: dict[str, float] = {
@@ -171,19 +172,8 @@ def tangent_frames(normals: np.ndarray) -> np.ndarray:
 
 
 def matrix_to_quat(r: np.ndarray) -> np.ndarray:
-    """Unit quaternions (N, 4) (w, x, y, z) with w >= 0 from rotation matrices (N, 3, 3)."""
-    r = np.asarray(r, np.float64)
-    m00, m11, m22 = r[:, 0, 0], r[:, 1, 1], r[:, 2, 2]
-    q = np.stack([
-        np.sqrt(np.maximum(0.0, 1 + m00 + m11 + m22)),
-        np.sqrt(np.maximum(0.0, 1 + m00 - m11 - m22)),
-        np.sqrt(np.maximum(0.0, 1 - m00 + m11 - m22)),
-        np.sqrt(np.maximum(0.0, 1 - m00 - m11 + m22)),
-    ], axis=1) / 2
-    q[:, 1] = np.copysign(q[:, 1], r[:, 2, 1] - r[:, 1, 2])
-    q[:, 2] = np.copysign(q[:, 2], r[:, 0, 2] - r[:, 2, 0])
-    q[:, 3] = np.copysign(q[:, 3], r[:, 1, 0] - r[:, 0, 1])
-    return (q / np.linalg.norm(q, axis=1, keepdims=True)).astype(np.float32)
+    """Unit quaternions (N, 4) (w, x, y, z) with w >= 0 from rotation matrices (N, 3, 3), float32."""
+    return quat_from_matrix(r).astype(np.float32)
 
 
 def disc_attributes(samples: SurfaceSamples, size: float = 0.6, thickness: float = 0.12

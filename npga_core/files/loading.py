@@ -1,7 +1,8 @@
 """The one place that opens avatars and sequences: decides the format and dispatches to its reader.
 
 `load_avatar` reads `.npga` checkpoints and 3DGS PLY files (by their first bytes) and the bundled demo;
-`load_sequence` reads `.npzseq`/`.npz`, `.npy` and MonoNPHM tracking folders. The model knows no file format.
+`load_sequence` reads `.npzseq`/`.npz`, `.npy`, MonoNPHM tracking folders and the NeRSemble / GaussianAvatars
+tracking npz files (recognised by their keys). The model knows no file format.
 """
 
 from __future__ import annotations
@@ -19,8 +20,9 @@ from npga_core.files.sequences import (
     read_npz,
     validate_sequence,
 )
+from npga_core.files.trackers import tracker_of
 from npga_core.files.tracking import load_mononphm_folder
-from npga_core.files.untrusted import open_regular, read_npy, real_floats, regular_file
+from npga_core.files.untrusted import npz_names, open_regular, read_npy, real_floats, regular_file
 from npga_core.model.avatar import Avatar
 
 #: Where the bundled demo avatar lives: package data (the repository's assets/demo), whatever the install.
@@ -54,7 +56,8 @@ def load_avatar(path: str | Path) -> Avatar:
 
 
 def load_sequence(path: str | Path, fps: float | None = None) -> ExpressionSequence:
-    """Load `.npzseq`/`.npz` (codes under a common key), `.npy` (T, D), or a MonoNPHM tracking folder."""
+    """Load `.npzseq`/`.npz` (codes under a common key), `.npy` (T, D), a MonoNPHM tracking folder, or a
+    NeRSemble FLAME tracking / GaussianAvatars flame_param npz, with the head pose as that source defines it."""
     path = Path(path)
     if path.is_dir():
         seq = load_mononphm_folder(path)
@@ -67,7 +70,7 @@ def load_sequence(path: str | Path, fps: float | None = None) -> ExpressionSeque
         seq = ExpressionSequence(codes, DEFAULT_FPS, path.stem)
     else:
         regular_file(path, "a sequence file")
-        seq = read_npz(path)
+        seq = (tracker_of(npz_names(path)) or read_npz)(path)
     if fps is not None:
         seq.fps = float(fps)
     return validate_sequence(seq, path)

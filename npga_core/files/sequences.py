@@ -1,20 +1,23 @@
 """Expression sequences: T codes at a frame rate, optional head pose, and the file formats they come in.
 
 The project's own format, `.npzseq`, is an uncompressed npz (zip of .npy, read with pickles refused) with:
-``codes`` (T, D) float32, ``fps`` () float64, optional ``rotation`` (T, 3) axis-angle, ``translation`` (T, 3),
-``scale`` (T,) or (T, 1), ``frame_names`` (T,) unicode, and ``name`` () unicode.
+``codes`` (T, D) float32, ``fps`` () float64, optional ``pose`` (T, 4, 4) float64 canonical -> world head pose
+with ``pose_source`` () unicode (what it came from), ``frame_names`` (T,) unicode, and ``name`` () unicode.
+Files written before the 4x4 have ``rotation`` (T, 3) axis-angle, ``translation`` (T, 3), ``scale`` (T,)
+instead, read as x_world = s R x + t (docs/FORMAT.md section 12).
 """
 
 from __future__ import annotations
 
 import io
-from dataclasses import dataclass
+from dataclasses import InitVar, dataclass
 from pathlib import Path
 
 import numpy as np
 
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
+from npga_core.files.pose import SIMILARITY, checked_pose, similarity_pose
 from npga_core.files.untrusted import npz_names, real_floats
 from npga_core.files.untrusted import read_npz as read_npz_arrays
 
@@ -27,15 +30,28 @@ MAX_SEQUENCE_BYTES = 512 * 2**20
 
 @dataclass
 class ExpressionSequence:
-    """T expression codes with a frame rate and optional per-frame head pose."""
+    """T expression codes with a frame rate and an optional per-frame head pose: `pose` (T, 4, 4), canonical
+    -> world (x_world = pose[t] @ [x, 1]), built by the reader from its tracker's definition
+    (`npga_core.files.pose`), and `pose_source` saying which. The keyword arguments `rotation` (T, 3)
+    axis-angle, `translation` (T, 3) and `scale` (T,) build `pose` as x_world = s R x + t."""
 
     codes: np.ndarray  # (T, D) float32
     fps: float = DEFAULT_FPS
     name: str = ""
-    rotation: np.ndarray | None = None  # (T, 3) axis-angle
-    translation: np.ndarray | None = None  # (T, 3)
-    scale: np.ndarray | None = None  # (T,)
+    rotation: InitVar[np.ndarray | None] = None
+    translation: InitVar[np.ndarray | None] = None
+    scale: InitVar[np.ndarray | None] = None
     frame_names: list[str] | None = None
+    pose: np.ndarray | None = None  # (T, 4, 4) float64, canonical -> world
+    pose_source: str = ""
+
+    def __post_init__(self, rotation, translation, scale) -> None:
+        if rotation is None and translation is None and scale is None:
+            return
+        if self.pose is not None:
+            raise ValueError("give either pose or rotation/translation/scale, not both")
+        self.pose = similarity_pose(rotation, translation, scale, len(self), self.name or "sequence")
+        self.pose_source = self.pose_source or SIMILARITY
 
     def __len__(self) -> int:
         return int(self.codes.shape[0])
@@ -53,9 +69,9 @@ class ExpressionSequence:
         path = Path(path)
         arrays: dict[str, np.ndarray] = {"codes": np.asarray(self.codes, np.float32),
                                          "fps": np.float64(self.fps), "name": np.str_(self.name)}
-        for key in ("rotation", "translation", "scale"):
-            if getattr(self, key) is not None:
-                arrays[key] = np.asarray(getattr(self, key), np.float32)
+        if self.pose is not None:
+            arrays["pose"] = np.asarray(self.pose, np.float64)
+            arrays["pose_source"] = np.str_(self.pose_source)
         if self.frame_names is not None:
             arrays["frame_names"] = np.array(self.frame_names, dtype=np.str_)
         buf = io.BytesIO()
@@ -77,17 +93,8 @@ def validate_sequence(seq: ExpressionSequence, path: Path) -> ExpressionSequence
         raise AvatarFileError(path, "expression codes have NaN/Inf values")
     if not (np.isfinite(seq.fps) and 0 < seq.fps <= 1000):
         raise AvatarFileError(path, f"frame rate {seq.fps} is not in (0, 1000]")
-    t = c.shape[0]
-    for key, width in (("rotation", 3), ("translation", 3), ("scale", 1)):
-        a = getattr(seq, key)
-        if a is None:
-            continue
-        a = np.asarray(a, np.float32).reshape(t, -1) if a.size == t * width else a
-        if a.shape != (t, width) or not np.isfinite(a).all():
-            raise AvatarFileError(path, f"{key} must be finite with shape ({t}, {width}), got {a.shape}")
-        if key == "scale" and not (a > 0).all():
-            raise AvatarFileError(path, f"scale must be positive (frame {int(np.argmax(~(a[:, 0] > 0)))} is not)")
-        setattr(seq, key, a[:, 0] if key == "scale" else a)
+    if seq.pose is not None:
+        seq.pose = checked_pose(seq.pose, c.shape[0], path)
     return seq
 
 
@@ -98,8 +105,9 @@ def read_npz(path: Path) -> ExpressionSequence:
     if key is None:
         raise AvatarFileError(path, f"no expression array under any of {', '.join(CODE_KEYS)} "
                               f"(keys: {', '.join(keys[:20]) or 'none'})")
-    z = read_npz_arrays(path, MAX_SEQUENCE_BYTES, keys=(key, "fps", "name", "frame_names", *POSE_KEYS),
-                        kinds={"name": "US", "frame_names": "US"})
+    z = read_npz_arrays(path, MAX_SEQUENCE_BYTES, keys=(key, "fps", "name", "frame_names", "pose", "pose_source",
+                                                        *POSE_KEYS),
+                        kinds={"name": "US", "frame_names": "US", "pose_source": "US"})
     codes = real_floats(z[key], path, "expression codes")
     if codes.ndim == 3 and codes.shape[1] == 1:
         codes = codes[:, 0]
@@ -109,8 +117,24 @@ def read_npz(path: Path) -> ExpressionSequence:
             raise AvatarFileError(path, f"fps must be one number, got shape {z['fps'].shape}")
         fps = float(real_floats(z["fps"], path, "fps", np.float64).reshape(()))
     name = str(z["name"].reshape(-1)[0]) if "name" in z and z["name"].size == 1 else path.stem
-    opt = {k: real_floats(z[k], path, k) for k in POSE_KEYS if k in z}
     names = [str(s) for s in np.atleast_1d(z["frame_names"])] if "frame_names" in z else None
     if names is not None and len(names) != codes.shape[0]:
         raise AvatarFileError(path, f"{len(names)} frame names for {codes.shape[0]} frames")
-    return ExpressionSequence(codes, fps, name, frame_names=names, **opt)
+    pose, source = _stored_pose(z, codes.shape[0] if codes.ndim == 2 else 0, path)
+    return ExpressionSequence(codes, fps, name, frame_names=names, pose=pose, pose_source=source)
+
+
+def _stored_pose(z: dict[str, np.ndarray], t: int, path: Path) -> tuple[np.ndarray | None, str]:
+    """The head pose of an `.npzseq`/`.npz`: `pose` (T, 4, 4) as stored, or the old `rotation`/`translation`/
+    `scale` as x_world = s R x + t; (None, "") without either or when the codes are no (T, D) table."""
+    if t < 1:
+        return None, ""
+    if "pose" in z:
+        if any(k in z for k in POSE_KEYS):
+            raise AvatarFileError(path, f"has both pose and {'/'.join(k for k in POSE_KEYS if k in z)}")
+        source = z.get("pose_source")
+        source = str(source.reshape(-1)[0]) if source is not None and source.size == 1 else "as stored"
+        return checked_pose(z["pose"], t, path), source
+    if any(k in z for k in POSE_KEYS):
+        return similarity_pose(z.get("rotation"), z.get("translation"), z.get("scale"), t, path), SIMILARITY
+    return None, ""

@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
-from npga_core.posing.headpose import has_head_pose
+from npga_core.posing.headpose import has_head_pose, pose_description
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import ViewerState
 
@@ -57,11 +57,16 @@ def draw(state: ViewerState, info: AppInfo) -> None:
         _, tl.head_pose = imgui.checkbox("Head pose", tl.head_pose)
         remember(info, "head_pose")
         if imgui.is_item_hovered():
-            imgui.set_tooltip("Move the head as tracked (rotation, translation, scale of the sequence).\n"
-                              "Through a rig camera: where the camera saw it. Orbit camera: relative to frame 1.")
+            imgui.set_tooltip("Move the head as tracked (the sequence's canonical -> world pose, as its tracker\n"
+                              "defines it). Through a rig camera: where the camera saw it. Orbit camera:\n"
+                              "relative to frame 1.")
         imgui.same_line()
         rig = state.rig_index >= 0 and bool(state.rig_path)
         imgui.text_disabled("as tracked" if rig else "relative to frame 1")
+        imgui.push_text_wrap_pos(0.0)
+        imgui.text_disabled(pose_description(seq))  # what is applied, e.g. GaussianAvatars' rotation about 0
+        imgui.pop_text_wrap_pos()
+        remember(info, "pose_source")
     else:
         imgui.text_disabled("no head pose in this sequence")
     _bake(state, info)
