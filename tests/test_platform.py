@@ -4,9 +4,11 @@ out of read-only and bundled folders."""
 from __future__ import annotations
 
 import os
+import shutil
 import subprocess
 import sys
 import textwrap
+import time
 from pathlib import Path
 
 import pytest
@@ -145,3 +147,74 @@ def test_read_only_avatar_folder_sends_caches_to_the_user_cache(tmp_path, monkey
         assert preview_cache_path(folder / "a.npga", "k" * 40, 64, 8, 2).parent == user_cache_dir("previews")
     finally:
         folder.chmod(0o755)
+
+
+def test_native_dialogs_only_where_a_desktop_is_present():
+    from npga_view.panels.files import native_dialogs_available as native
+
+    def which_none(_: str) -> None:
+        return None
+
+    def which_zenity(name: str) -> str | None:
+        return "/usr/bin/zenity" if name == "zenity" else None
+
+    desktop = {"DISPLAY": ":0", "XDG_CURRENT_DESKTOP": "GNOME"}
+    assert native(desktop, "linux", which_zenity)
+    assert not native(desktop, "linux", which_none)  # no dialog program
+    assert not native({"DISPLAY": ":99"}, "linux", which_zenity)  # a bare Xvfb: no desktop session
+    assert not native({}, "linux", which_zenity)  # no display at all
+    assert native({"WAYLAND_DISPLAY": "wayland-0", "DESKTOP_SESSION": "plasma"}, "linux", which_zenity)
+    assert not native({**desktop, "SSH_CONNECTION": "10.0.0.1 5 10.0.0.2 22"}, "linux", which_zenity)
+    assert native({}, "win32", which_none) and native({}, "darwin", which_none)
+    assert not native({"SSH_TTY": "/dev/pts/1"}, "darwin", which_none)
+    assert not native({**desktop, "NPGA_VIEW_DIALOGS": "builtin"}, "linux", which_zenity)
+    assert native({"NPGA_VIEW_DIALOGS": "native"}, "linux", which_none)
+
+
+@pytest.mark.gui
+def test_native_open_dialog_answers_into_an_action(tmp_path):
+    """The real portable_file_dialogs path on Linux: zenity opens under Xvfb, a user types a path and presses
+    Enter (xdotool), the panel queues it as an open action. Needs zenity and xdotool (not installed by
+    scripts/install.sh: zenity brings GTK and WebKit), else skipped."""
+    if not sys.platform.startswith("linux") or not (shutil.which("zenity") and shutil.which("xdotool")):
+        pytest.skip("needs Linux with zenity and xdotool (apt-get install zenity xdotool)")
+    from npga_view.panels import files
+    from npga_view.state import ViewerState
+
+    from .xvfb import start_xvfb, stop
+
+    try:
+        proc, display = start_xvfb()
+    except RuntimeError as e:
+        pytest.skip(str(e))
+    old = os.environ.get("DISPLAY")
+    os.environ["DISPLAY"] = display
+    target = tmp_path / "mine.npga"
+    target.write_bytes(b"x")
+    state = ViewerState()
+    try:
+        files._ui["browse"] = str(tmp_path)
+        files.ask_open("open_avatar", "Open an avatar (test)")
+        found = subprocess.run(["xdotool", "search", "--sync", "--name", "Open an avatar"], capture_output=True,
+                               text=True, timeout=30).stdout.split()
+        assert found, "the zenity dialog did not appear"
+        subprocess.run(["xdotool", "windowfocus", "--sync", found[0]], capture_output=True, timeout=10)
+        time.sleep(0.5)
+        subprocess.run(["xdotool", "type", "--delay", "50", str(target)], check=True, timeout=30)
+        time.sleep(1.0)
+        subprocess.run(["xdotool", "key", "Return"], check=True, timeout=10)
+        end = time.monotonic() + 30
+        while files._ui["dialog"] is not None and time.monotonic() < end:
+            files._poll_dialog(state)
+            time.sleep(0.1)
+        assert state.actions == [("open_avatar", str(target))]
+        assert files._ui["browse"] == str(tmp_path)
+    finally:
+        if files._ui["dialog"] is not None:
+            files._ui["dialog"][1].kill()
+            files._ui["dialog"] = None
+        if old is None:
+            os.environ.pop("DISPLAY", None)
+        else:
+            os.environ["DISPLAY"] = old
+        stop(proc)
