@@ -7,6 +7,7 @@ otherwise the last one is composited again, so the UI stays fluid while the avat
 from __future__ import annotations
 
 import ctypes
+import sys
 import time
 from pathlib import Path
 
@@ -548,8 +549,20 @@ class ViewerApp:
             self.close()
         return 0
 
+    def request_close(self, signum: int | None = None) -> None:
+        """Close at the end of the current frame, as the window's close button does (SIGTERM/SIGINT/SIGHUP)."""
+        self.should_close = True
+
     def close(self) -> None:
+        """Unsaved edits autosaved, recording stopped, worker stopped (its shared memory unlinked), window
+        closed. The path of a window close and of the close signals; safe to call twice."""
         self.recorder.stop()
+        session = self.edits.session
+        if session is not None and session.dirty:
+            try:
+                session.autosave()
+            except (OSError, ValueError) as e:
+                print(f"npga-view: autosave failed: {' '.join(str(e).split())}", file=sys.stderr)
         if self.engine is not None:
             self.engine.close()
             self.engine = None

@@ -181,19 +181,31 @@ class ViewerState:
     def load_recent(self) -> None:
         """The recent-files list from the config folder; a missing file is an empty list, a broken one is
         reported (and ignored)."""
-        path = config_dir() / "recent.json"
+        path = recent_file()
         self.recent = []
         if not os.path.lexists(path):
             return
         try:
-            data = read_json(path, MAX_SESSION_BYTES, what="a recent-files list")
-            if not isinstance(data, list):
-                raise AvatarFileError(path, "expected a list of paths")
-            self.recent = [p for p in data if isinstance(p, str) and len(p) < 4096][:10]
-        except (AvatarFileError, OSError) as e:
+            self.recent = read_recent(path)
+        except AvatarFileError as e:
             self.report(str(e))
 
     def save_recent(self) -> None:
         text = json.dumps(self.recent).encode()
         with contextlib.suppress(OSError):
-            atomic_write(config_dir() / "recent.json", lambda fh: fh.write(text))
+            atomic_write(recent_file(), lambda fh: fh.write(text))
+
+
+def recent_file() -> Path:
+    return config_dir() / "recent.json"
+
+
+def read_recent(path: str | Path) -> list[str]:
+    """The recent-files list (untrusted JSON: at most 10 paths kept); AvatarFileError when it is broken."""
+    try:
+        data = read_json(path, MAX_SESSION_BYTES, what="a recent-files list")
+    except OSError as e:
+        raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None
+    if not isinstance(data, list):
+        raise AvatarFileError(path, "expected a list of paths")
+    return [p for p in data if isinstance(p, str) and 0 < len(p) < 4096 and "\0" not in p][:10]

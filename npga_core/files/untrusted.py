@@ -122,7 +122,10 @@ def read_bytes(path: str | Path, max_bytes: int, what: str = "a file") -> bytes:
         size = file_size(fh)
         if size is not None and size > max_bytes:
             raise AvatarFileError(path, f"is {size} bytes, more than the {max_bytes} allowed for {what}")
-        data = fh.read(max_bytes + 1)
+        try:
+            data = fh.read(max_bytes + 1)
+        except OSError as e:
+            raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None
     if len(data) > max_bytes:
         raise AvatarFileError(path, f"is more than the {max_bytes} bytes allowed for {what}")
     return data

@@ -27,9 +27,12 @@ from __future__ import annotations
 
 import contextlib
 import multiprocessing as mp
+import os
 import queue
+import signal
 import time
 import traceback
+import weakref
 from dataclasses import asdict, dataclass
 from multiprocessing import shared_memory
 from pathlib import Path
@@ -37,6 +40,7 @@ from pathlib import Path
 import numpy as np
 
 from npga_core.model.gaussians import PosedGaussians
+from npga_core.posing.lifetime import shutdown_worker, start_parent_watch
 
 N_SLOTS = 2
 FREE, BUSY = 0, 1
@@ -155,7 +159,11 @@ def peak_rss_mb() -> float:
 
 
 def _worker(path: str, layout: Layout, names: list[str], slot_state, req_q, res_q, threads: int,
-            options: EngineOptions) -> None:
+            options: EngineOptions, parent_pid: int | None = None) -> None:
+    if parent_pid is not None:
+        start_parent_watch(parent_pid, names)
+    with contextlib.suppress(ValueError, AttributeError):  # Ctrl+C in a terminal reaches the whole process
+        signal.signal(signal.SIGINT, signal.SIG_IGN)  # group: the parent decides when the worker stops
     shms = [shared_memory.SharedMemory(name=n) for n in names]
     try:
         _Worker(path, layout, [s.buf for s in shms], slot_state, req_q, res_q, threads, options).run()
@@ -394,7 +402,9 @@ class _Worker:
             budget = int(budget_mb * 2**20)
             key = bake_key(self.key, codes, bits, budget)
             path = cache_path(self.path, key, self.opts.cache_dir) if use_cache else None
-            store = BakeStore.open(path, key) if path is not None else None
+            store = BakeStore.open(path, key, self.poser.n, self.poser.layout.width) if path is not None else None
+            if store is not None and store.frames != len(codes):
+                store = None
             status = BakeStatus(len(codes), cache_file=str(path) if path else None, from_cache=store is not None)
             if store is None:
                 store = BakeStore.create(key, len(codes), self.poser.n, self.poser.layout.width, bits, budget)
@@ -484,8 +494,15 @@ class PoseEngine:
         self.worker_peak_rss_mb = 0.0
         self._proc = ctx.Process(target=_worker, daemon=True, name="npga-pose-worker",
                                  args=(path, self.layout, [s.name for s in self._shms], self._slots, self._req,
-                                       self._res, threads, self.options))
-        self._proc.start()
+                                       self._res, threads, self.options, os.getpid()))
+        # stops the worker and unlinks the slots when close() is called, the engine is dropped, or the
+        # interpreter exits (SIGTERM/SIGINT handled by the CLI, exceptions); a killed parent is the worker's job
+        self._finalizer = weakref.finalize(self, shutdown_worker, self._proc, self._req, self._shms)
+        try:
+            self._proc.start()
+        except BaseException:
+            self._finalizer()
+            raise
         self.ready = False
 
     # -- requests --------------------------------------------------------------------------------------
@@ -599,19 +616,20 @@ class PoseEngine:
     def alive(self) -> bool:
         return self._proc.is_alive()
 
+    @property
+    def pid(self) -> int | None:
+        """The worker's process id."""
+        return self._proc.pid
+
+    @property
+    def shm_names(self) -> list[str]:
+        """Names of the shared-memory slots (for leak checks)."""
+        return [s.name for s in self._shms]
+
     def close(self) -> None:
-        """Stop the worker and free the shared memory."""
-        if self._proc.is_alive():
-            self._req.put(None)
-            self._proc.join(timeout=5)
-            if self._proc.is_alive():
-                self._proc.kill()
-                self._proc.join(timeout=5)
-        for s in self._shms:
-            s.close()
-            with contextlib.suppress(FileNotFoundError):
-                s.unlink()
+        """Stop the worker and free the shared memory (idempotent)."""
         self._views = []
+        self._finalizer()
 
     def __enter__(self) -> PoseEngine:
         return self

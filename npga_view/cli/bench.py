@@ -436,6 +436,15 @@ def viewer_side(path: str, args) -> dict:
     return out
 
 
+def _helper_init(parent_pid: int) -> None:
+    """Start of bench's helper process: exit when bench is gone; SIGTERM unwinds like in the CLI."""
+    from npga_core.posing.lifetime import start_parent_watch
+    from npga_view.cli import signals
+
+    start_parent_watch(parent_pid, [])
+    signals.install()
+
+
 def bench_avatar(name: str, path: str, args) -> dict:
     """All figures of one avatar file."""
     import multiprocessing as mp
@@ -444,8 +453,18 @@ def bench_avatar(name: str, path: str, args) -> dict:
     from npga_core.files.loading import load_avatar
     from npga_core.posing.preview import PreviewModel, preview_cache_path
 
-    with ProcessPoolExecutor(1, mp_context=mp.get_context("spawn")) as pool:
+    # the viewer side runs in a helper process; it must not outlive bench (#16): it watches its parent, and a
+    # bench ended by a signal (or an error) stops it instead of waiting for its task
+    pool = ProcessPoolExecutor(1, mp_context=mp.get_context("spawn"), initializer=_helper_init,
+                               initargs=(os.getpid(),))
+    try:
         viewer = pool.submit(viewer_side, path, args).result()
+    except BaseException:
+        for proc in list((getattr(pool, "_processes", None) or {}).values()):  # no public way before 3.14
+            proc.terminate()  # SIGTERM: its handler unwinds, closing its PoseEngine
+        raise
+    finally:
+        pool.shutdown(wait=True, cancel_futures=True)
     gc.collect()
     avatar = load_avatar(path)
     out: dict = {"name": name, "gaussians": len(avatar), "path": path, **viewer}

@@ -1,26 +1,38 @@
-"""`npga-view [AVATAR] [--sequence SEQ]`: the interactive viewer."""
+"""`npga-view [view] [AVATAR] [--sequence SEQ] ...`: the interactive viewer (the default command).
+
+SIGTERM, SIGINT and SIGHUP close the window as its close button does (unsaved edits autosaved, pose worker
+stopped, shared memory unlinked); a second signal ends at once, still through the same cleanup.
+"""
 
 from __future__ import annotations
 
 import argparse
 import sys
 
+from npga_core.errors import AvatarFileError
+
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
-    p.add_argument("avatar", nargs="?", default="demo", help="a .npga, a 3DGS .ply or 'demo' (default)")
-    p.add_argument("--sequence", help="expression sequence (.npzseq, .npz, .npy or a MonoNPHM folder)")
-    p.add_argument("--session", help="restore a saved session file")
-    p.add_argument("--rig", help="camera rig calibration (NeRSemble camera_params.json)")
+    p.add_argument("avatar", nargs="?", default="demo", metavar="AVATAR",
+                   help="a .npga, a 3DGS .ply or 'demo' (default: the bundled demo avatar)")
+    p.add_argument("--sequence", metavar="SEQ",
+                   help="expression sequence (.npzseq, .npz, .npy or a MonoNPHM tracking folder)")
     p.add_argument("--play", action="store_true", help="start playing the sequence")
-    p.add_argument("--size", default="1360x900", help="window size WxH (default 1360x900)")
-    p.add_argument("--screenshot", help="save a window screenshot (PNG) and quit (with --quit-after-frames)")
-    p.add_argument("--quit-after-frames", type=int, help="quit after N frames, counted once the avatar is drawn")
-    p.add_argument("--threads", type=int, default=2, help="torch threads of the dynamics worker")
-    p.add_argument("--device", default="cpu",
-                   help="where the dynamics run: cpu (default), cuda, mps or auto (a GPU when torch sees one)")
     p.add_argument("--bake", action="store_true",
                    help="bake the sequence at start and play from the bake (progress in the Timeline panel)")
-    p.add_argument("--bake-budget-mb", type=float, default=1024.0, help="memory budget of a bake (default 1024)")
+    p.add_argument("--bake-budget-mb", type=float, default=1024.0, metavar="MB",
+                   help="memory budget of a bake (default 1024)")
+    p.add_argument("--session", metavar="FILE", help="restore a saved session file (.json)")
+    p.add_argument("--rig", metavar="FILE", help="camera rig calibration (NeRSemble camera_params.json)")
+    p.add_argument("--device", default="cpu",
+                   help="where the dynamics run: cpu (default), cuda, mps or auto (a GPU when torch sees one)")
+    p.add_argument("--threads", type=int, default=2, metavar="N", help="torch threads of the dynamics worker")
+    p.add_argument("--size", default="1360x900", metavar="WxH", help="window size (default 1360x900)")
+    p.add_argument("--screenshot", metavar="PNG",
+                   help="save a window screenshot and quit (after 3 frames, or --quit-after-frames)")
+    p.add_argument("--quit-after-frames", type=int, metavar="N",
+                   help="quit after N frames, counted once the avatar is drawn (scripted runs: bad input files "
+                   "exit 2 before a window opens)")
 
 
 def run(args: argparse.Namespace) -> int:
@@ -41,6 +53,27 @@ def run(args: argparse.Namespace) -> int:
     if args.bake_budget_mb <= 0:
         print("npga-view: error: --bake-budget-mb must be positive", file=sys.stderr)
         return 2
+    if args.quit_after_frames is not None:
+        check_files(args)
+    from npga_view.cli import signals
+
+    holder: dict = {}
+
+    def close_on_signal(signum: int) -> None:
+        holder["signal"] = signum
+        if "app" not in holder:  # no window yet: nothing to save, unwind
+            raise signals.Terminated(signum)
+        holder["app"].request_close(signum)
+
+    restore = signals.install(close_on_signal)
+    try:
+        code = _open_and_run(args, w, h, holder)
+    finally:
+        restore()
+    return 128 + holder["signal"] if "signal" in holder else code
+
+
+def _open_and_run(args: argparse.Namespace, w: int, h: int, holder: dict) -> int:
     from npga_view.app import ViewerApp
 
     try:
@@ -48,20 +81,25 @@ def run(args: argparse.Namespace) -> int:
     except RuntimeError as e:
         print(f"npga-view: error: {e}", file=sys.stderr)
         return 2
-    opened = app.open_avatar(args.avatar)
-    if args.sequence and opened:
-        app.open_sequence(args.sequence)
-        app.state.timeline.playing = bool(args.play)
-        app.state.timeline.bake_budget_mb = args.bake_budget_mb
-        if args.bake:
-            app.state.actions.append(("bake", None))
-    if args.rig:
-        app.state.actions.append(("load_rig", args.rig))
-    if args.session:
-        try:
-            app.load_session(args.session)
-        except ValueError as e:
-            app.state.report(str(e))
+    holder["app"] = app
+    try:
+        opened = app.open_avatar(args.avatar)
+        if args.sequence and opened:
+            app.open_sequence(args.sequence)
+            app.state.timeline.playing = bool(args.play)
+            app.state.timeline.bake_budget_mb = args.bake_budget_mb
+            if args.bake:
+                app.state.actions.append(("bake", None))
+        if args.rig:
+            app.state.actions.append(("load_rig", args.rig))
+        if args.session:
+            try:
+                app.load_session(args.session)
+            except (ValueError, AvatarFileError) as e:
+                app.state.report(str(e))
+    except BaseException:
+        app.close()
+        raise
     if args.quit_after_frames is not None and app.state.errors:
         # scripted runs fail loudly on bad input instead of screenshotting an error
         msg = app.state.errors[-1]
@@ -69,3 +107,27 @@ def run(args: argparse.Namespace) -> int:
         print(f"npga-view: error: {msg}", file=sys.stderr)
         return 2
     return app.run(args.screenshot, args.quit_after_frames)
+
+
+def check_files(args: argparse.Namespace) -> None:
+    """Scripted runs (--quit-after-frames/--screenshot): read the files named on the command line and the
+    user's presets and recent-files lists with the window's own readers before a window opens, so that bad
+    input fails at once (AvatarFileError: one line, exit 2). The avatar itself is read once, by the window."""
+    import os
+
+    from npga_core.files.loading import load_sequence
+    from npga_core.files.rig import load_rig
+    from npga_view.controllers.actions import ActionController, read_presets
+    from npga_view.state import ViewerState, read_recent, recent_file
+
+    if args.sequence:
+        load_sequence(args.sequence)
+    if args.rig:
+        load_rig(args.rig)
+    if args.session:
+        ViewerState().load_session(args.session)
+    presets, recent = ActionController.presets_file(), recent_file()
+    if os.path.lexists(presets):
+        read_presets(presets)
+    if os.path.lexists(recent):
+        read_recent(recent)

@@ -1,4 +1,4 @@
-"""`npga-view`: the viewer (default) and its subcommands."""
+"""`npga-view`: the viewer (the default command, also `npga-view view`) and its subcommands."""
 
 from __future__ import annotations
 
@@ -11,11 +11,14 @@ from npga_core.errors import AvatarFileError
 
 # subcommand -> module with add_arguments(parser) and run(args) -> int
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
+    "view": ("npga_view.cli.gui", "open the viewer (the default: `npga-view [AVATAR] [options]` is the same)"),
     "info": ("npga_view.cli.info", "print a summary of an avatar file"),
     "render": ("npga_view.cli.render", "render an avatar headless to PNG or MP4"),
     "bench": ("npga_view.cli.bench", "measure the dynamics (exact, preview, playback) on this machine"),
     "export": ("npga_view.cli.export", "export the avatar posed at one expression as a 3DGS .ply"),
 }
+DEFAULT = "view"
+USAGE = "npga-view [AVATAR] [viewer options] | npga-view COMMAND [options]"
 
 
 def _load(module: str) -> tuple[Callable, Callable]:
@@ -25,9 +28,30 @@ def _load(module: str) -> tuple[Callable, Callable]:
     return mod.add_arguments, mod.run
 
 
+def command_parser(name: str) -> argparse.ArgumentParser:
+    """The parser of one subcommand (`view` is also reached without a command name)."""
+    module, help_text = SUBCOMMANDS[name]
+    add_arguments, _ = _load(module)
+    prog = "npga-view" if name == DEFAULT else f"npga-view {name}"
+    p = argparse.ArgumentParser(prog=prog, description=help_text)
+    if name == DEFAULT:
+        p.usage = "npga-view [view] [AVATAR] [options]"
+    add_arguments(p)
+    return p
+
+
 def build_parser() -> argparse.ArgumentParser:
-    """The full parser (subcommands are imported lazily when used)."""
-    p = argparse.ArgumentParser(prog="npga-view", description="Viewer and editor for NPGA Gaussian head avatars.")
+    """The full parser, whose help also lists the viewer's own options (subcommands are imported lazily)."""
+    view_help = command_parser(DEFAULT).format_help().splitlines()
+    start = next((i for i, line in enumerate(view_help) if line.startswith("positional")), 0)
+    viewer = "\n".join(line for line in view_help[start:] if not line.lstrip().startswith("-h, --help"))
+    p = argparse.ArgumentParser(
+        prog="npga-view", usage=USAGE, formatter_class=argparse.RawDescriptionHelpFormatter,
+        description="Viewer and editor for NPGA Gaussian head avatars.\n\n"
+                    "Without a COMMAND, npga-view opens the viewer on AVATAR (default: the bundled demo) with the\n"
+                    "viewer options below; `npga-view view ...` is the same. `npga-view COMMAND --help` shows a\n"
+                    "command's options.",
+        epilog="the viewer (`npga-view [view] [AVATAR] [options]`):\n  " + viewer.strip().replace("\n", "\n  "))
     p.add_argument("--version", action="version", version=f"npga-view {__version__}")
     sub = p.add_subparsers(dest="command", metavar="COMMAND")
     for name, (module, help_text) in SUBCOMMANDS.items():
@@ -38,33 +62,31 @@ def build_parser() -> argparse.ArgumentParser:
 
 
 def main(argv: list[str] | None = None) -> int:
-    """Entry point; returns the exit code (2 for bad input, with a one-line message and no traceback)."""
-    argv = list(sys.argv[1:] if argv is None else argv)
-    if argv and argv[0] in SUBCOMMANDS:
-        name = argv[0]
-        module, help_text = SUBCOMMANDS[name]
-        add_arguments, run = _load(module)
-        parser = argparse.ArgumentParser(prog=f"npga-view {name}", description=help_text)
-        add_arguments(parser)
-        args = parser.parse_args(argv[1:])
-    elif argv and argv[0] in ("-h", "--help", "--version"):
-        build_parser().parse_args(argv)
-        return 0
-    else:
-        from npga_view.cli import gui as cli_gui
+    """Entry point; returns the exit code (2 for bad input, with a one-line message and no traceback;
+    128 + N when ended by signal N, after the same cleanup as a normal exit)."""
+    from npga_view.cli import signals
 
-        parser = argparse.ArgumentParser(prog="npga-view", description="Open the viewer (default: the demo avatar). "
-                                         f"Subcommands: {', '.join(SUBCOMMANDS)}.")
-        cli_gui.add_arguments(parser)
-        args = parser.parse_args(argv)
-        run = cli_gui.run
+    argv = list(sys.argv[1:] if argv is None else argv)
+    if argv and argv[0] in ("-h", "--help", "--version"):
+        build_parser().parse_args(argv[:1])
+        return 0
+    name = argv.pop(0) if argv and argv[0] in SUBCOMMANDS else DEFAULT
+    args = command_parser(name).parse_args(argv)
+    _, run = _load(SUBCOMMANDS[name][0])
+    # SIGTERM/SIGHUP/SIGINT unwind like Ctrl+C (finally blocks close pose engines); the viewer installs its own
+    # handlers that close the window first
+    restore = signals.install()
     try:
         return int(run(args) or 0)
     except AvatarFileError as e:
         print(f"npga-view: error: {e}", file=sys.stderr)
         return 2
+    except signals.Terminated as e:
+        return e.exit_code
     except KeyboardInterrupt:
         return 130
+    finally:
+        restore()
 
 
 if __name__ == "__main__":
