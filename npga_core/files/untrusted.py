@@ -289,28 +289,39 @@ def real_floats(arr: Any, path: str | Path, what: str, dtype: Any = np.float32) 
 # JSON
 
 
-def json_depth(data: bytes) -> int:
-    """Deepest bracket nesting of JSON text (UTF-8 bytes), computed without recursion.
+def json_depth(data: bytes, stop_above: int | None = None, chunk: int = 1 << 20) -> int:
+    """Deepest bracket nesting of JSON text (UTF-8 bytes), computed without recursion, in bounded memory.
 
     Brackets inside strings are not counted (a quote after an odd run of backslashes is escaped). Exact for
-    valid JSON; for invalid text it is only an estimate (the parser refuses such text anyway).
+    valid JSON; for invalid text it is only an estimate (the parser refuses such text anyway). With
+    `stop_above`, returns as soon as the depth exceeds it.
     """
-    b = np.frombuffer(data, dtype=np.uint8)
-    if b.size == 0:
-        return 0
-    idx = np.arange(b.size)
-    backslash = b == ord("\\")
-    last_plain = np.maximum.accumulate(np.where(~backslash, idx, -1))  # last non-backslash at or before i
-    run_before = np.empty(b.size, dtype=np.int64)  # backslashes right before position i
-    run_before[0] = 0
-    run_before[1:] = idx[:-1] - last_plain[:-1]
-    quote = (b == ord('"')) & (run_before % 2 == 0)
-    in_string = (np.cumsum(quote) - quote) % 2 == 1
-    step = np.zeros(b.size, dtype=np.int64)
-    step[(b == ord("[")) | (b == ord("{"))] = 1
-    step[(b == ord("]")) | (b == ord("}"))] = -1
-    step[in_string] = 0
-    return int(np.cumsum(step).max(initial=0))
+    buf = np.frombuffer(data, dtype=np.uint8)
+    in_string, depth, deepest, run = 0, 0, 0, 0  # carried from one chunk to the next
+    for start in range(0, buf.size, chunk):
+        b = buf[start:start + chunk]
+        idx = np.arange(b.size, dtype=np.int64)
+        backslash = b == ord("\\")
+        last_plain = np.maximum.accumulate(np.where(~backslash, idx, -1))  # last non-backslash at or before i
+        before = np.empty(b.size, dtype=np.int64)  # length of the backslash run right before position i
+        before[0] = run
+        prev = last_plain[:-1]
+        before[1:] = np.where(prev >= 0, idx[:-1] - prev, idx[1:] + run)
+        quote = (b == ord('"')) & (before % 2 == 0)
+        count = np.cumsum(quote, dtype=np.int64)
+        inside = (in_string + count - quote) % 2 == 1
+        step = np.zeros(b.size, dtype=np.int64)
+        step[(b == ord("[")) | (b == ord("{"))] = 1
+        step[(b == ord("]")) | (b == ord("}"))] = -1
+        step[inside] = 0
+        levels = depth + np.cumsum(step)
+        deepest = max(deepest, int(levels.max()))
+        if stop_above is not None and deepest > stop_above:
+            return deepest
+        in_string = int((in_string + count[-1]) % 2)
+        depth = int(levels[-1])
+        run = int(b.size - 1 - last_plain[-1]) + (run if last_plain[-1] < 0 else 0)
+    return deepest
 
 
 def _reject_constant(name: str) -> None:
@@ -337,7 +348,7 @@ def parse_json(data: bytes | str, path: str | Path, max_depth: int = MAX_JSON_DE
         text = raw.decode("utf-8-sig")
     except UnicodeDecodeError as e:
         raise AvatarFileError(path, f"not UTF-8 text ({e.reason} at byte {e.start})") from None
-    depth = json_depth(raw)
+    depth = json_depth(raw, stop_above=max_depth)
     if depth > max_depth:
         raise AvatarFileError(path, f"JSON nested {depth} levels deep, more than the {max_depth} allowed")
     try:
