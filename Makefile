@@ -2,7 +2,7 @@
 VENV ?= .venv
 STAMP := $(VENV)/.installed
 
-.PHONY: view test install lint bench clean
+.PHONY: view test install lint bench clean wheel check-wheel
 
 view: $(STAMP)
 	$(VENV)/bin/npga-view $(ARGS)
@@ -19,5 +19,13 @@ $(STAMP): pyproject.toml scripts/install.sh
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
 
+# the sdist and the wheel in dist/ (what `pip install .` builds)
+wheel: $(STAMP)
+	$(VENV)/bin/python -m build --outdir dist .
+
+# build, install the wheel into a fresh venv outside the checkout and use it from another folder (as CI does)
+check-wheel: $(STAMP)
+	bash scripts/check_wheel.sh $(VENV)/bin/python
+
 clean:
-	rm -rf $(VENV) build *.egg-info
+	rm -rf $(VENV) build dist *.egg-info
