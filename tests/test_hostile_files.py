@@ -1,0 +1,227 @@
+"""Every reader against a generated corpus of hostile files (tests/hostile_corpus.py), through the command line.
+
+Each case runs in its own process (forked from a server that imported the project once, see
+tests/cli_forkserver.py) with an address-space limit (RLIMIT_AS: 1 GiB above what the process had) and a
+generous wall-clock bound, and must end with exit status 2 and exactly one line on stderr naming the file: no
+traceback, no native crash (death by a signal), no hang, no memory blow-up, nothing unpickled. Caches, which
+have no command of their own, go through the reader the pose worker uses and must be refused (a miss). A few
+cases also run through the real console entry point (`python -m npga_view.cli`) with the limit set in
+preexec_fn. The number of cases per reader is printed (`pytest -s`) and checked to be at least 10.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import resource
+import subprocess
+import sys
+from collections.abc import Callable
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from . import hostile_corpus as hc
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="fork server, FIFOs, RLIMIT_AS")
+
+LIMIT_MB = 1024  # address space a case may add to what the process had
+TIMEOUT_S = 120.0  # a bound on a hang, not a speed
+
+
+@pytest.fixture(scope="module")
+def world(tmp_path_factory):
+    """A small animatable avatar, a PLY, valid caches to tamper with, and the fork server."""
+    from npga_core.files.checkpoint import save_avatar
+    from npga_core.files.ply import save_ply
+    from npga_core.model.synthetic import make_synthetic_avatar
+    from npga_core.posing.bake import BakeStore
+    from npga_core.posing.preview import PreviewModel
+
+    root = tmp_path_factory.mktemp("hostile")
+    avatar = make_synthetic_avatar(400, seed=7)
+    npga = root / "avatar.npga"
+    save_avatar(avatar, npga)
+    ply = root / "static.ply"
+    save_ply(make_synthetic_avatar(50, with_f=False, with_g=False).cloud, ply)
+    store = BakeStore.create("k" * 32, 6, 400, 10, 8)
+    store.done[:] = True
+    bake = root / "good.npgabake"
+    store.save(bake)
+    model = PreviewModel.geometric(avatar.cloud.means, 64, 4)
+    model.key = "k" * 32
+    preview = root / "good-preview.npz"
+    model.save(preview)
+    from .cli_forkserver import ForkServer
+
+    server = ForkServer(root, env={"DISPLAY": "", "WAYLAND_DISPLAY": "", "XDG_CONFIG_HOME": str(root / "cfg"),
+                                   "XDG_CACHE_HOME": str(root / "cache")})
+    yield {"root": root, "avatar": npga, "dim": avatar.code_dim, "n": len(avatar), "ply": ply, "bake": bake,
+           "preview": preview, "key": "k" * 32, "server": server}
+    server.close()
+
+
+def _cli(argv: Callable[[Path, dict], list[str]], env: Callable[[Path], dict] | None = None,
+         names: Callable[[Path], list[Path]] | None = None):
+    """A reader reached through the command line: exit 2, one line naming the file."""
+    return {"argv": argv, "env": env or (lambda p: {}), "names": names or (lambda p: [p]), "exit": 2}
+
+
+def _call(func: str, args: Callable[[Path, dict], list]):
+    """A cache reader: refused (the function returns 0), silently."""
+    return {"call": func, "args": args, "exit": 0}
+
+
+READERS: dict[str, tuple[Callable[[Path, dict], dict[str, Path]], dict]] = {
+    "expression codes .npy (export --expr)": (
+        lambda d, w: hc.npy_codes(d, w["dim"]),
+        _cli(lambda p, w: ["export", str(w["avatar"]), "--out", str(w["root"] / "o.ply"), "--expr", str(p)])),
+    "sequence .npz/.npzseq (export --sequence)": (
+        lambda d, w: hc.npz_sequences(d, w["dim"]),
+        _cli(lambda p, w: ["export", str(w["avatar"]), "--out", str(w["root"] / "o.ply"), "--sequence", str(p),
+                           "--frame", "0"])),
+    "MonoNPHM tracking folder (export --sequence)": (
+        lambda d, w: hc.mononphm_folders(d, w["dim"]),
+        _cli(lambda p, w: ["export", str(w["avatar"]), "--out", str(w["root"] / "o.ply"), "--sequence", str(p),
+                           "--frame", "0"])),
+    "avatar .npga (info)": (
+        lambda d, w: hc.npga_files(d, w["avatar"]),
+        _cli(lambda p, w: ["info", str(p)])),
+    "avatar .ply (info)": (
+        lambda d, w: hc.ply_files(d, w["ply"]),
+        _cli(lambda p, w: ["info", str(p)])),
+    "camera JSON (render --camera)": (
+        lambda d, w: hc.camera_json(d),
+        _cli(lambda p, w: ["render", str(w["avatar"]), "--camera", str(p), "--out", str(w["root"] / "o.png")])),
+    "rig camera_params.json (viewer --rig)": (
+        lambda d, w: hc.rig_json(d),
+        _cli(lambda p, w: ["view", str(w["avatar"]), "--rig", str(p), "--quit-after-frames", "1"])),
+    "keyframe timeline JSON (render --timeline)": (
+        lambda d, w: hc.keyframe_json(d, w["dim"]),
+        _cli(lambda p, w: ["render", str(w["avatar"]), "--timeline", str(p), "--out", str(w["root"] / "o.mp4")])),
+    "session JSON (viewer --session)": (
+        lambda d, w: hc.session_json(d),
+        _cli(lambda p, w: ["view", str(w["avatar"]), "--session", str(p), "--quit-after-frames", "1"])),
+    "presets.json (viewer start)": (
+        lambda d, w: hc.presets_configs(d),
+        _cli(lambda p, w: ["view", str(w["avatar"]), "--quit-after-frames", "1"],
+             env=lambda p: {"XDG_CONFIG_HOME": str(p)}, names=lambda p: [p / "npga-view" / "presets.json"])),
+    "recent.json (viewer start)": (
+        lambda d, w: hc.recent_configs(d),
+        _cli(lambda p, w: ["view", str(w["avatar"]), "--quit-after-frames", "1"],
+             env=lambda p: {"XDG_CONFIG_HOME": str(p)}, names=lambda p: [p / "npga-view" / "recent.json"])),
+    "bake cache .npgabake (pose worker)": (
+        lambda d, w: hc.bake_caches(d, w["bake"]),
+        _call("tests.hostile_corpus:open_bake_cache", lambda p, w: [str(p), w["key"]])),
+    "preview cache .npz (pose worker)": (
+        lambda d, w: hc.preview_caches(d, w["preview"]),
+        _call("tests.hostile_corpus:load_preview_cache", lambda p, w: [str(p), w["key"], w["n"]])),
+}
+
+
+def _check(name: str, target: Path, spec: dict, world: dict, folder: Path, env: dict | None = None) -> str | None:
+    """Run one case; None when it behaved, else what went wrong."""
+    out, err = folder / f"{target.name}.out", folder / f"{target.name}.err"
+    req = {"stdout": str(out), "stderr": str(err), "limit_mb": LIMIT_MB, "timeout": TIMEOUT_S, "env": env or {}}
+    if "argv" in spec:
+        req.update(argv=spec["argv"](target, world), env={**req["env"], **spec["env"](target)})
+    else:
+        req.update(call=spec["call"], args=spec["args"](target, world))
+    reply = world["server"].run(req)
+    text = err.read_text(errors="replace") if err.exists() else ""
+    lines = [line for line in text.splitlines() if line.strip()]
+    problems = []
+    if reply["timed_out"]:
+        problems.append(f"hung (killed after {TIMEOUT_S:g} s)")
+    if reply["signal"] is not None:
+        problems.append(f"died of signal {reply['signal']} (native crash)")
+    if reply["exit"] != spec["exit"]:
+        problems.append(f"exit {reply['exit']}, expected {spec['exit']}")
+    if "Traceback" in text:
+        problems.append("traceback")
+    if spec["exit"] == 2:
+        if len(lines) != 1:
+            problems.append(f"{len(lines)} lines on stderr")
+        elif not any(str(n) in lines[0] for n in spec["names"](target)):
+            problems.append("the message does not name the file")
+    if (folder / hc.MARKER).exists():
+        problems.append("UNPICKLED")
+    return f"{name}: {'; '.join(problems)} | {text.strip()[-300:]!r}" if problems else None
+
+
+@pytest.mark.parametrize("reader", list(READERS))
+def test_hostile_corpus(reader, world, tmp_path):
+    build, spec = READERS[reader]
+    folder = tmp_path / "corpus"
+    folder.mkdir()
+    cases = build(folder, world)
+    failures = [f for name, target in cases.items() if (f := _check(name, target, spec, world, folder))]
+    print(f"\n{reader}: {len(cases)} hostile cases, {len(cases) - len(failures)} handled")
+    assert len(cases) >= 10
+    assert not failures, "\n".join(failures)
+
+
+def test_autosave_recovery_refuses_hostile_autosaves(world, tmp_path, monkeypatch):
+    """The Edit panel's Recover reads the autosave of the open avatar: every hostile .npga (and FIFO, directory,
+    device) placed there is refused with one line naming it (or, for what is not a regular file, "no autosave")."""
+    from npga_core.editing.edits import autosave_path_for
+
+    source = tmp_path / "edited.npga"
+    source.write_bytes(world["avatar"].read_bytes())
+    corpus_dir = tmp_path / "corpus"
+    corpus_dir.mkdir()
+    corpus = {k: v for k, v in hc.npga_files(corpus_dir, world["avatar"]).items() if k != "missing"}
+    failures = []
+    for i, (name, case) in enumerate(corpus.items()):
+        home = tmp_path / f"cache{i}"
+        monkeypatch.setenv("XDG_CACHE_HOME", str(home))
+        target = autosave_path_for(source)  # where the viewer autosaves edits of `source`
+        target.parent.mkdir(parents=True)
+        if case.is_symlink():
+            target.symlink_to(os.readlink(case))
+        else:
+            case.rename(target)
+        spec = {"call": "tests.hostile_corpus:recover_autosave", "args": lambda p, w: [str(source)], "exit": 2,
+                "names": lambda p: [p, source]}
+        failure = _check(name, target, spec, world, corpus_dir, env={"XDG_CACHE_HOME": str(home)})
+        if failure:
+            failures.append(failure)
+    print(f"\nautosave .npga (Edit panel Recover): {len(corpus)} hostile cases, {len(corpus) - len(failures)} handled")
+    assert len(corpus) >= 10
+    assert not failures, "\n".join(failures)
+
+
+# -- the real console entry point ---------------------------------------------------------------------------------
+def _limit_address_space() -> None:
+    resource.setrlimit(resource.RLIMIT_AS, (8 << 30, 8 << 30))  # far below what the hostile headers claim
+
+
+@pytest.mark.parametrize("kind", ["npy huge shape", "deep keyframes", "huge camera", "fifo avatar"])
+def test_console_entry_point(kind, world, tmp_path):
+    """The cases of the issue, through `python -m npga_view.cli` in a fresh process with RLIMIT_AS set in
+    preexec_fn: exit 2, one line naming the file, no traceback, no hang."""
+    avatar, out = str(world["avatar"]), str(tmp_path / "o.png")
+    if kind == "npy huge shape":
+        p = tmp_path / "huge.npy"
+        p.write_bytes(hc._npy_header((10**9, 10**6)))
+        argv = ["export", avatar, "--out", str(tmp_path / "o.ply"), "--expr", str(p)]
+    elif kind == "deep keyframes":
+        p = tmp_path / "deep.json"
+        p.write_bytes(b"[" * 200000 + b"]" * 200000)
+        argv = ["render", avatar, "--timeline", str(p), "--out", str(tmp_path / "o.mp4")]
+    elif kind == "huge camera":
+        p = tmp_path / "cam.json"
+        p.write_text(json.dumps({"width": 10**6, "height": 10**6, "fx": 1.0, "fy": 1.0, "cx": 0.0, "cy": 0.0,
+                                 "world_to_camera": np.eye(4).tolist()}))
+        argv = ["render", avatar, "--camera", str(p), "--out", out]
+    else:
+        p = tmp_path / "fifo.npga"
+        os.mkfifo(p)
+        argv = ["info", str(p)]
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, "-m", "npga_view.cli", *argv], capture_output=True, text=True,
+                       timeout=300, preexec_fn=_limit_address_space, cwd=root,
+                       env={**os.environ, "PYTHONPATH": str(root), "DISPLAY": ""})
+    assert r.returncode == 2, r.stderr[-2000:]
+    assert r.stderr.count("\n") == 1 and str(p) in r.stderr and "Traceback" not in r.stderr, r.stderr
