@@ -1,10 +1,10 @@
 """H.264 video in MP4 through PyAV: the one place npga-view encodes video.
 
 Files play in browsers, on GitHub, in chat apps and slide tools: H.264 (libx264, which PyAV's wheels carry on
-Linux, macOS and Windows), 8-bit yuv420p, even width and height, no B-frames, the index at the front
-(`+faststart`). Timestamps are real: a constant-rate writer (`fps`) stamps frame i at i / fps; a
-variable-rate writer (`fps=None`) stamps each frame with the time it is given, and every frame lasts until the
-next one (the last until `close(end)`), so a recording plays at the speed it was made.
+Linux, macOS and Windows), 8-bit yuv420p (BT.709, limited range, tagged), even width and height, no
+B-frames, the index at the front (`+faststart`). Timestamps are real: a constant-rate writer (`fps`) stamps
+frame i at i / fps; a variable-rate writer (`fps=None`) stamps each frame with the time it is given, and every
+frame lasts until the next one (the last until `close(end)`), so a recording plays at the speed it was made.
 
 The file is written under a temporary name in the target's folder and renamed when complete, like every save.
 """
@@ -19,10 +19,13 @@ from pathlib import Path
 
 import numpy as np
 
+from npga_core.files.atomic import move_into_place
+
 CODEC = "libx264"
 PIX_FMT = "yuv420p"
 #: Clock of variable-rate files (the usual 90 kHz video clock).
 VFR_TIME_BASE = Fraction(1, 90000)
+BT709, MPEG_RANGE = 1, 1  # FFmpeg's AVCOL_SPC/PRI/TRC_BT709 and AVCOL_RANGE_MPEG (limited)
 
 
 class VideoError(OSError):
@@ -71,6 +74,9 @@ class VideoWriter:
             stream.width, stream.height = self.size
             stream.pix_fmt = PIX_FMT
             stream.options = {"preset": preset, "crf": str(int(crf)), "bf": "0"}
+            cc = stream.codec_context  # BT.709, limited range: what _encode converts to, tagged for players
+            cc.colorspace = cc.color_primaries = cc.color_trc = BT709
+            cc.color_range = MPEG_RANGE
             self.time_base = (1 / self.fps) if self.fps is not None else VFR_TIME_BASE
             stream.time_base = stream.codec_context.time_base = self.time_base
             self._stream = stream
@@ -116,7 +122,9 @@ class VideoWriter:
             self._container = None
             if self.frames == 0:
                 raise VideoError(f"{self.path}: no frames were written")
-            os.replace(self._tmp, self.path)
+            with open(self._tmp, "rb+") as fh:
+                os.fsync(fh.fileno())
+            move_into_place(self._tmp, self.path)
         except BaseException as e:
             self._abort()
             if isinstance(e, VideoError | KeyboardInterrupt):
@@ -152,8 +160,10 @@ class VideoWriter:
 
     def _encode(self, rgb: np.ndarray, pts: int, duration: int) -> None:
         import av
+        from av.video.reformatter import ColorRange, Colorspace
 
-        frame = av.VideoFrame.from_ndarray(rgb, format="rgb24")
+        frame = av.VideoFrame.from_ndarray(rgb, format="rgb24").reformat(
+            format=PIX_FMT, dst_colorspace=Colorspace.ITU709, dst_color_range=ColorRange.MPEG)
         frame.pts, frame.time_base = pts, self.time_base
         self._durations[pts] = self._last_duration = duration
         try:

@@ -40,7 +40,8 @@ export XDG_CACHE_HOME="$WORK/cache" XDG_CONFIG_HOME="$WORK/config"
 step "npga-view --help"
 "$WORK/venv/bin/npga-view" --help >/dev/null
 step "npga-view info demo"
-"$WORK/venv/bin/npga-view" info demo | tee info.txt | head -3
+"$WORK/venv/bin/npga-view" info demo >info.txt
+head -3 info.txt
 step "npga-view render demo --out x.png"
 "$WORK/venv/bin/npga-view" render demo --out x.png
 # a short sequence: the first 12 frames of a bundled demo animation

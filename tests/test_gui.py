@@ -336,8 +336,7 @@ def test_record_viewport_to_mp4(app, avatar_path, tmp_path, monkeypatch):
     times = [float(f.time) for f in frames]
     assert times[0] == 0.0 and min(np.diff(times)) >= 0.15 - 1e-3
     assert 7 * 0.15 - 1e-3 <= duration <= elapsed
-    first, last = frames[0].to_ndarray(format="rgb24"), frames[-1].to_ndarray(format="rgb24")
-    assert first.std() > 5 and np.abs(first.astype(int) - last.astype(int)).mean() > 1  # the orbit shows
+    assert frames[0].to_ndarray(format="rgb24").std() > 5  # the avatar, not a flat image
 
 
 def _key(app, key, ctrl=False):

@@ -3,6 +3,8 @@ file read back with PyAV (the library that wrote it; av.open / decode as in PyAV
 
 from __future__ import annotations
 
+import os
+
 import numpy as np
 import pytest
 
@@ -34,6 +36,28 @@ def test_constant_rate_file_plays_at_its_fps(tmp_path):
     assert info["duration"] == pytest.approx(10 / 12.5, abs=1e-3)
     assert np.allclose(np.diff(info["times"]), 1 / 12.5, atol=1e-3)
     assert np.allclose(_grey_levels(out), [20 * i for i in range(10)], atol=3)  # in order, none lost
+
+
+def test_colours_come_back_and_the_file_gets_the_usual_permissions(tmp_path):
+    """BT.709 conversion and tags agree, so a decoder that reads the tags returns the colours written."""
+    import av
+
+    out = tmp_path / "colour.mp4"
+    rgb = np.zeros((48, 64, 3), np.uint8)
+    rgb[:, :32] = (200, 100, 50)
+    rgb[:, 32:] = (30, 160, 220)
+    with VideoWriter(out, 64, 48, fps=25) as w:
+        w.write(rgb)
+    with av.open(str(out)) as c:
+        cc = c.streams.video[0].codec_context
+        assert (cc.colorspace, cc.color_primaries, cc.color_trc, cc.color_range) == (1, 1, 1, 1)  # BT.709, tv
+        back = next(c.decode(video=0)).to_ndarray(format="rgb24").astype(int)
+    assert np.abs(back[8:40, 4:28] - (200, 100, 50)).max() <= 4
+    assert np.abs(back[8:40, 36:60] - (30, 160, 220)).max() <= 4
+    if os.name == "posix":
+        mask = os.umask(0)
+        os.umask(mask)
+        assert out.stat().st_mode & 0o777 == 0o666 & ~mask  # not mkstemp's 0600
 
 
 def test_odd_sizes_become_even_and_frames_are_cropped_or_padded(tmp_path):

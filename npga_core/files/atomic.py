@@ -66,13 +66,21 @@ def atomic_write(path: str | Path, write: Callable[[BinaryIO], None]) -> None:
             write(fh)
             fh.flush()
             os.fsync(fh.fileno())
-        if POSIX:  # mkstemp makes 0600
-            os.chmod(tmp, _mode_for(path))
-        _replace(tmp, path)
+        move_into_place(tmp, path)
     except BaseException:
         with contextlib.suppress(OSError):
             os.unlink(tmp)
         raise
+
+
+def move_into_place(tmp: str | Path, path: str | Path) -> None:
+    """Give the complete temp file `tmp` (made by mkstemp in `path`'s folder, already synced) the permissions
+    `path` has or would get, rename it over `path` and sync the folder: the end of an atomic save, for writers
+    that cannot hand `atomic_write` a callback (a video encoder writing frame by frame)."""
+    path = Path(path)
+    if POSIX:  # mkstemp makes 0600
+        os.chmod(tmp, _mode_for(path))
+    _replace(str(tmp), path)
     if POSIX:  # make the rename itself durable
         with contextlib.suppress(OSError):
             dfd = os.open(path.parent, os.O_RDONLY)
