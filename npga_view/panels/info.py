@@ -40,6 +40,8 @@ class AppInfo:
     keyframe_time: float = 0.0
     keyframe_playing: bool = False
     inspect: InspectInfo | None = None  # legend, counts, histogram, picked record (Inspect panel)
+    shown: str = "splats"  # what the view shows: "splats", "refined" (CNN output), "latent", or "splats (refining)"
+    cnn_ms: float = 0.0  # time of the last CNN refinement (Refiner.last_timings["cnn"])
 
 
 def remember(info: AppInfo, name: str) -> None:
