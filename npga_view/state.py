@@ -72,7 +72,9 @@ class ViewerState:
     camera: OrbitCamera = field(default_factory=OrbitCamera)
     mode: str = "rgb"
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
-    use_cnn: bool = True
+    use_cnn: bool = True  # show the CNN-refined image (avatars with a CNN), else the raw splats
+    latent_view: str = "off"  # "off" | "pca" (PCA of h as RGB) | "channel" (h[latent_channel]): the latent image
+    latent_channel: int = 0
     sliders: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))  # one per PCA component, in std
     n_sliders: int = 10  # how many are shown (at most MAX_SLIDERS)
     follow_sequence: bool = True  # the code comes from the sequence frame (else from the sliders)

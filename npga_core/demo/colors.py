@@ -8,6 +8,8 @@ DC colour, plus a facing-ratio term in the degree-1 SH so surfaces darken gently
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 from scipy.spatial import cKDTree
 
@@ -39,14 +41,26 @@ def smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
     return t * t * (3.0 - 2.0 * t)
 
 
-def _fourier_noise(points: np.ndarray, rng: np.random.Generator, wavelengths: tuple[float, float],
-                   terms: int = 8) -> np.ndarray:
-    """Smooth noise in about [-1, 1]: a sum of random plane waves with wavelengths in the given range."""
-    d = rng.normal(size=(terms, 3))
-    d /= np.linalg.norm(d, axis=1, keepdims=True)
-    k = 2 * np.pi / rng.uniform(*wavelengths, size=terms)
-    phase = rng.uniform(0, 2 * np.pi, size=terms)
-    return np.sin(points @ (d * k[:, None]).T + phase).sum(axis=1) / np.sqrt(terms / 2)
+@dataclass(frozen=True)
+class FourierNoise:
+    """Smooth noise in about [-1, 1]: a sum of random plane waves with wavelengths in a given range."""
+
+    directions: np.ndarray  # (terms, 3) unit
+    wavenumbers: np.ndarray  # (terms,)
+    phase: np.ndarray  # (terms,)
+
+    @staticmethod
+    def draw(rng: np.random.Generator, wavelengths: tuple[float, float], terms: int = 8) -> FourierNoise:
+        d = rng.normal(size=(terms, 3))
+        d /= np.linalg.norm(d, axis=1, keepdims=True)
+        k = 2 * np.pi / rng.uniform(*wavelengths, size=terms)
+        phase = rng.uniform(0, 2 * np.pi, size=terms)
+        return FourierNoise(d, k, phase)
+
+    def __call__(self, points: np.ndarray) -> np.ndarray:
+        terms = len(self.phase)
+        return np.sin(points @ (self.directions * self.wavenumbers[:, None]).T + self.phase).sum(axis=1) / np.sqrt(
+            terms / 2)
 
 
 def _blob(points: np.ndarray, centre, radius: float) -> np.ndarray:
@@ -109,20 +123,21 @@ def brow_weight(head: IctHead, points: np.ndarray, part: np.ndarray) -> np.ndarr
     return w
 
 
-def hair_weight(points: np.ndarray, part: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Short hair over the scalp: above a hairline that runs from the forehead over the ears to the nape."""
+def hair_weight(points: np.ndarray, part: np.ndarray, noise: FourierNoise) -> np.ndarray:
+    """Short hair over the scalp: above a hairline (moved by `noise`) that runs from the forehead over the ears
+    to the nape."""
     p = points / CM
     theta = np.degrees(np.abs(np.arctan2(p[:, 0], p[:, 2] - 1.0)))
     line = np.interp(theta, [0, 30, 55, 80, 100, 125, 150, 180], [10.6, 10.0, 8.6, 6.8, 6.2, 3.0, -2.0, -2.8])
-    line = line + 0.18 * _fourier_noise(points, rng, (0.03, 0.06), terms=6)
+    line = line + 0.18 * noise(points)
     scalp = np.isin(part, [PART_NAMES.index("face"), PART_NAMES.index("head_neck")])
     return smoothstep(line - 0.25, line + 0.45, p[:, 1]) * scalp
 
 
-def eye_colours(head: IctHead, points: np.ndarray, part: np.ndarray, rng: np.random.Generator) -> np.ndarray:
-    """Sclera, iris (radial streaks, darker limbal ring) and pupil colours of eye-shell samples."""
+def eye_colours(head: IctHead, points: np.ndarray, part: np.ndarray, phase: np.ndarray) -> np.ndarray:
+    """Sclera, iris (radial streaks with random `phase` (4,), darker limbal ring) and pupil colours of eye-shell
+    points."""
     out = np.zeros((len(points), 3))
-    phase = rng.uniform(0, 2 * np.pi, size=4)
     for e, names in enumerate((("sclera_l", "iris_l"), ("sclera_r", "iris_r"))):
         m = np.isin(part, [PART_NAMES.index(n) for n in names])
         d = points[m] - head.eye_centres[e]
@@ -143,50 +158,123 @@ def eye_colours(head: IctHead, points: np.ndarray, part: np.ndarray, rng: np.ran
     return out
 
 
+#: Parts whose colour is a flat colour with a per-sample jitter, in the order their jitter is drawn.
+_FLAT_PARTS = ("mouth_socket", "gums_tongue", "teeth", "eye_socket_l", "eye_socket_r")
+
+
+@dataclass
+class AlbedoModel:
+    """The random draws of the procedural albedo: noise fields, the iris phase and per-sample jitter.
+
+    `draw` consumes the generator exactly as the albedo of the shipped build did, so `evaluate` at the samples
+    reproduces the avatar's colours bit for bit; `evaluate` at any other surface point (a pixel of a mesh render)
+    gives the same colour function at full resolution, with the per-sample jitter interpolated (`jitter_at`).
+    """
+
+    skin: FourierNoise
+    hue: FourierNoise
+    lips: FourierNoise
+    hairline: FourierNoise
+    eye_phase: np.ndarray  # (4,)
+    jitter: np.ndarray  # (N, 4) normal draws per sample: skin grain, brow, hair, flat parts
+    points: np.ndarray  # (N, 3) the samples the jitter belongs to
+    part: np.ndarray  # (N,)
+
+    @staticmethod
+    def draw(samples: SurfaceSamples, rng: np.random.Generator) -> AlbedoModel:
+        n, part = len(samples), samples.part
+        jitter = np.zeros((n, 4))
+        skin = FourierNoise.draw(rng, (0.03, 0.09))
+        hue = FourierNoise.draw(rng, (0.02, 0.06))
+        jitter[:, 0] = rng.standard_normal((n, 1))[:, 0]
+        lips = FourierNoise.draw(rng, (0.004, 0.01))
+        jitter[:, 1] = rng.standard_normal((n, 1))[:, 0]
+        hairline = FourierNoise.draw(rng, (0.03, 0.06), terms=6)
+        jitter[:, 2] = rng.standard_normal((n, 1))[:, 0]
+        for name in _FLAT_PARTS:
+            m = part == PART_NAMES.index(name)
+            jitter[m, 3] = rng.standard_normal((int(m.sum()), 1))[:, 0]
+        eye_phase = rng.uniform(0, 2 * np.pi, size=4)
+        return AlbedoModel(skin, hue, lips, hairline, eye_phase, jitter, samples.points, part)
+
+    def jitter_at(self, points: np.ndarray, part: np.ndarray, k: int = 4) -> np.ndarray:
+        """Per-sample jitter interpolated (inverse distance, k nearest samples of the same part) at `points`."""
+        out = np.zeros((len(points), self.jitter.shape[1]))
+        for pid in np.unique(part):
+            q = np.flatnonzero(part == pid)
+            src = np.flatnonzero(self.part == pid)
+            if len(src) == 0:
+                continue
+            kk = min(k, len(src))
+            dist, j = cKDTree(self.points[src]).query(points[q], k=kk)
+            dist, j = dist.reshape(len(q), kk), j.reshape(len(q), kk)
+            w = 1.0 / np.maximum(dist, 1e-5)
+            out[q] = (self.jitter[src[j]] * (w / w.sum(axis=1, keepdims=True))[..., None]).sum(axis=1)
+        return out
+
+    def evaluate(self, head: IctHead, points: np.ndarray, part: np.ndarray, tri: np.ndarray, bary: np.ndarray,
+                 jitter: np.ndarray | None = None) -> np.ndarray:
+        """Base colour (M, 3) in [0, 1] at surface points (float32 positions, part ids, triangles, barycentrics);
+        `jitter` (M, 4) defaults to the samples' own (then the points must be the samples)."""
+        jitter = self.jitter if jitter is None else jitter
+        p = points.astype(np.float64)
+        n = len(p)
+        col = np.tile(SKIN, (n, 1))
+        # low-frequency skin variation (blotchiness, a slight hue drift) and a fine grain
+        col *= 1.0 + 0.035 * self.skin(p)[:, None]
+        col[:, 0] *= 1.0 + 0.02 * self.hue(p)
+        col *= 1.0 + 0.012 * jitter[:, 0:1]
+        red = (0.8 * (_blob(p, (4.4, 0.2, 9.6), 1.8) + _blob(p, (-4.4, 0.2, 9.6), 1.8))  # cheeks
+               + 0.6 * _blob(p, (0, 0.5, 12.8), 1.0)  # nose tip
+               + 0.5 * (_blob(p, (7.6, 1.5, 0.5), 1.8) + _blob(p, (-7.6, 1.5, 0.5), 1.8)))  # ears
+        col += red[:, None] * np.array([0.03, -0.05, -0.04])
+        under_eye = _blob(p, (3.2, 2.2, 9.6), 0.8) + _blob(p, (-3.2, 2.2, 9.6), 0.8)
+        col *= (1.0 - 0.06 * under_eye)[:, None]
+        lip = lip_weight(head, points, part)[:, None]
+        col = (1 - lip) * col + lip * LIPS * (1.0 + 0.04 * self.lips(p))[:, None]
+        lids = eyelid_mask(head, tri, bary, part)[:, None]  # lids slightly darker and pinker
+        col = np.where(lids, col * np.array([0.95, 0.9, 0.9]), col)
+        brow = 0.72 * brow_weight(head, points, part)[:, None]
+        col = (1 - brow) * col + brow * BROW * (1.0 + 0.15 * jitter[:, 1:2])
+        hair = hair_weight(points, part, self.hairline)[:, None]
+        col = (1 - hair) * col + hair * HAIR * (1.0 + 0.12 * jitter[:, 2:3])
+
+        def depth(z0: float, z1: float) -> np.ndarray:  # 1 at the lips, falling off into the mouth
+            return 0.45 + 0.55 * smoothstep(z0 * CM, z1 * CM, p[:, 2])
+
+        shades = {"mouth_socket": (SOCKET, depth(3.0, 9.5)), "gums_tongue": (GUMS, depth(3.0, 10.0)),
+                  "teeth": (TEETH, 0.7 + 0.3 * smoothstep(6.0 * CM, 10.0 * CM, p[:, 2])),
+                  "eye_socket_l": (EYE_SOCKET, 1.0), "eye_socket_r": (EYE_SOCKET, 1.0)}
+        for name in _FLAT_PARTS:
+            c, shade = shades[name]
+            m = part == PART_NAMES.index(name)
+            col[m] = c * np.broadcast_to(shade, (n,))[m, None] * (1.0 + 0.03 * jitter[m, 3:4])
+        eyes = np.isin(part, [PART_NAMES.index(k) for k in ("sclera_l", "iris_l", "sclera_r", "iris_r")])
+        col[eyes] = eye_colours(head, points, part, self.eye_phase)[eyes]
+        return np.clip(col, 0.0, 1.0)
+
+
 def albedo(head: IctHead, samples: SurfaceSamples, rng: np.random.Generator) -> np.ndarray:
     """Procedural base colour (N, 3) in [0, 1] of every sample."""
-    p, part = samples.points.astype(np.float64), samples.part
-    n = len(p)
-    col = np.tile(SKIN, (n, 1))
-    # low-frequency skin variation (blotchiness, a slight hue drift) and a fine grain
-    col *= 1.0 + 0.035 * _fourier_noise(p, rng, (0.03, 0.09))[:, None]
-    col[:, 0] *= 1.0 + 0.02 * _fourier_noise(p, rng, (0.02, 0.06))
-    col *= 1.0 + 0.012 * rng.standard_normal((n, 1))
-    red = (0.8 * (_blob(p, (4.4, 0.2, 9.6), 1.8) + _blob(p, (-4.4, 0.2, 9.6), 1.8))  # cheeks
-           + 0.6 * _blob(p, (0, 0.5, 12.8), 1.0)  # nose tip
-           + 0.5 * (_blob(p, (7.6, 1.5, 0.5), 1.8) + _blob(p, (-7.6, 1.5, 0.5), 1.8)))  # ears
-    col += red[:, None] * np.array([0.03, -0.05, -0.04])
-    under_eye = _blob(p, (3.2, 2.2, 9.6), 0.8) + _blob(p, (-3.2, 2.2, 9.6), 0.8)
-    col *= (1.0 - 0.06 * under_eye)[:, None]
-    lip = lip_weight(head, samples.points, part)[:, None]
-    col = (1 - lip) * col + lip * LIPS * (1.0 + 0.04 * _fourier_noise(p, rng, (0.004, 0.01)))[:, None]
-    lids = eyelid_mask(head, samples.tri, samples.bary, part)[:, None]  # lids slightly darker and pinker
-    col = np.where(lids, col * np.array([0.95, 0.9, 0.9]), col)
-    brow = 0.72 * brow_weight(head, samples.points, part)[:, None]
-    col = (1 - brow) * col + brow * BROW * (1.0 + 0.15 * rng.standard_normal((n, 1)))
-    hair = hair_weight(samples.points, part, rng)[:, None]
-    col = (1 - hair) * col + hair * HAIR * (1.0 + 0.12 * rng.standard_normal((n, 1)))
-
-    def depth(z0: float, z1: float) -> np.ndarray:  # 1 at the lips, falling off into the mouth
-        return 0.45 + 0.55 * smoothstep(z0 * CM, z1 * CM, p[:, 2])
-
-    for name, c, shade in (("mouth_socket", SOCKET, depth(3.0, 9.5)), ("gums_tongue", GUMS, depth(3.0, 10.0)),
-                           ("teeth", TEETH, 0.7 + 0.3 * smoothstep(6.0 * CM, 10.0 * CM, p[:, 2])),
-                           ("eye_socket_l", EYE_SOCKET, 1.0), ("eye_socket_r", EYE_SOCKET, 1.0)):
-        m = part == PART_NAMES.index(name)
-        col[m] = c * np.broadcast_to(shade, (n,))[m, None] * (1.0 + 0.03 * rng.standard_normal((int(m.sum()), 1)))
-    eyes = np.isin(part, [PART_NAMES.index(k) for k in ("sclera_l", "iris_l", "sclera_r", "iris_r")])
-    col[eyes] = eye_colours(head, samples.points, part, rng)[eyes]
-    return np.clip(col, 0.0, 1.0)
+    return AlbedoModel.draw(samples, rng).evaluate(head, samples.points, samples.part, samples.tri, samples.bary)
 
 
-def cavity(points: np.ndarray, normals: np.ndarray, radius: float = 0.012, k: int = 64) -> np.ndarray:
-    """Ambient-occlusion-like cavity term in [0, 1]: mean elevation of nearby samples above the tangent plane."""
-    dist, idx = cKDTree(points).query(points, k=k + 1, distance_upper_bound=radius)
-    dist, idx = dist[:, 1:], idx[:, 1:]
+def cavity(points: np.ndarray, normals: np.ndarray, radius: float = 0.012, k: int = 64,
+           reference: np.ndarray | None = None) -> np.ndarray:
+    """Ambient-occlusion-like cavity term in [0, 1]: mean elevation of nearby samples above the tangent plane.
+
+    The samples are `points` themselves (each point's own entry left out) or, if given, the `reference` points.
+    """
+    if reference is None:
+        dist, idx = cKDTree(points).query(points, k=k + 1, distance_upper_bound=radius)
+        dist, idx = dist[:, 1:], idx[:, 1:]
+        ref = points
+    else:
+        dist, idx = cKDTree(reference).query(points, k=k, distance_upper_bound=radius)
+        ref = reference
     valid = np.isfinite(dist)
     idx = np.where(valid, idx, 0)
-    d = points[idx] - points[:, None]
+    d = ref[idx] - points[:, None]
     elev = (d * normals[:, None]).sum(-1) / np.maximum(dist, 1e-9)
     elev = np.where(valid, np.clip(elev, 0.0, 1.0), 0.0)
     return elev.sum(axis=1) / np.maximum(valid.sum(axis=1), 1)

@@ -55,6 +55,33 @@ def _frames(v: torch.Tensor, faces: torch.Tensor) -> torch.Tensor:
     return torch.stack([e1, e2, n], dim=-1)
 
 
+def shading_weights(head: IctHead, rest: np.ndarray, part: np.ndarray) -> dict[str, torch.Tensor]:
+    """Per-point weights (float32) of the expression-dependent shading at canonical positions `rest`: skin (where
+    compression darkens), stripe_weight and stripe (forehead and nose-bridge wrinkle stripes), mouth_depth."""
+    face = part == PART_NAMES.index("face")
+    skin = face | (part == PART_NAMES.index("head_neck"))
+    brow_y = head.landmark_points(range(17, 27))[:, 1].mean()
+    forehead = smoothstep(brow_y - 0.3 * CM, brow_y + 0.4 * CM, rest[:, 1])
+    nose_bridge = (smoothstep(1.8 * CM, 1.2 * CM, np.abs(rest[:, 0])) * smoothstep(1.5 * CM, 2.5 * CM, rest[:, 1]))
+    stripes = np.clip(forehead + nose_bridge, 0.0, 1.0) * (rest[:, 2] > 6.0 * CM) * face
+    inside = np.isin(part, [PART_NAMES.index(k) for k in ("mouth_socket", "gums_tongue", "teeth")])
+    depth = smoothstep(10.5 * CM, 6.0 * CM, rest[:, 2]) * inside
+    stripe = 0.5 + 0.5 * np.cos(2 * np.pi * rest[:, 1] / WRINKLE_PERIOD)
+    out = {"skin": skin, "stripe_weight": stripes, "stripe": stripe, "mouth_depth": depth}
+    return {k: torch.from_numpy(np.asarray(v).astype(np.float32)) for k, v in out.items()}
+
+
+def darkening(lam_min: torch.Tensor, jaw: torch.Tensor, skin: torch.Tensor, stripe_weight: torch.Tensor,
+              stripe: torch.Tensor, mouth_depth: torch.Tensor) -> torch.Tensor:
+    """Colour darkening in [0, MAX_DARKENING] from the smallest principal stretch of the surface `lam_min` (skin
+    compression, modulated by the wrinkle stripes) and the jawOpen weight (deeper in the mouth)."""
+    compression = (-lam_min.log()).clamp_min(0.0) * skin
+    modulation = (1.0 - stripe_weight) + stripe_weight * (0.25 + 1.5 * stripe)
+    dark = 1.0 - torch.exp(-COMPRESSION_DARKENING * compression * modulation)
+    mouth = MOUTH_DARKENING * jaw * mouth_depth
+    return (1.0 - (1.0 - dark) * (1.0 - mouth)).clamp(0.0, MAX_DARKENING)
+
+
 @dataclass
 class GTargets:
     """G's targets for a batch of (point, expression) pairs, in the network's output conventions."""
@@ -115,29 +142,14 @@ class HeadTargets:
         return out
 
 
-class AppearanceTargets(HeadTargets):
-    """G's targets: frame rotation, axis stretch and colour darkening of points with known disc frames."""
+class VertexGradients:
+    """Area-averaged deformation gradients of the ICT mesh per vertex: `[e1' e2' n'] [e1 e2 n]^-1` per triangle."""
 
-    def __init__(self, head: IctHead, tri: np.ndarray, bary: np.ndarray, frames: np.ndarray, colour: np.ndarray,
-                 part: np.ndarray, dc_scale: float):
-        super().__init__(head, tri, bary)
-        self.axes = torch.from_numpy(np.ascontiguousarray(frames[:, :, :2], np.float32))  # (N, 3, 2) tangent axes
-        # DC colour that the darkening scales (the head-on colour times the DC share, see colors.colours_to_sh)
-        self.dc_colour = torch.from_numpy((np.asarray(colour) * dc_scale).astype(np.float32))
-        rest = self.rest.numpy()
-        face = part == PART_NAMES.index("face")
-        skin = face | (part == PART_NAMES.index("head_neck"))
-        brow_y = head.landmark_points(range(17, 27))[:, 1].mean()
-        forehead = smoothstep(brow_y - 0.3 * CM, brow_y + 0.4 * CM, rest[:, 1])
-        nose_bridge = (smoothstep(1.8 * CM, 1.2 * CM, np.abs(rest[:, 0])) * smoothstep(1.5 * CM, 2.5 * CM, rest[:, 1]))
-        stripes = np.clip(forehead + nose_bridge, 0.0, 1.0) * (rest[:, 2] > 6.0 * CM) * face
-        self.stripe_weight = torch.from_numpy(stripes.astype(np.float32))
-        self.stripe = torch.from_numpy((0.5 + 0.5 * np.cos(2 * np.pi * rest[:, 1] / WRINKLE_PERIOD)).astype(np.float32))
-        self.skin = torch.from_numpy(skin.astype(np.float32))
-        inside = np.isin(part, [PART_NAMES.index(k) for k in ("mouth_socket", "gums_tongue", "teeth")])
-        depth = smoothstep(10.5 * CM, 6.0 * CM, rest[:, 2]) * inside
-        self.mouth_depth = torch.from_numpy(depth.astype(np.float32))
-        self.jaw = head.expression_index("jawOpen")
+    def __init__(self, head: IctHead, deltas: torch.Tensor | None = None, gaze: GazeModel | None = None):
+        self.head = head
+        self.deltas = torch.from_numpy(head.deltas) if deltas is None else deltas
+        self.gaze = gaze or GazeModel(head.expression_names)
+        self.faces = torch.from_numpy(head.faces)
         v0 = torch.from_numpy(head.vertices)
         frames0 = _frames(v0, self.faces).double()
         area = 0.5 * torch.linalg.cross(frames0[..., 0], frames0[..., 1]).norm(dim=-1)
@@ -152,8 +164,8 @@ class AppearanceTargets(HeadTargets):
         self.tri_weight = weight
         self.vertex_norm = 1.0 / vsum.clamp_min(1e-20)
 
-    def vertex_gradients(self, w: torch.Tensor) -> torch.Tensor:
-        """Area-averaged deformation gradients (B, V, 3, 3) of the mesh at weights w (B, E)."""
+    def __call__(self, w: torch.Tensor) -> torch.Tensor:
+        """Gradients (B, V, 3, 3) at blendshape weights w (B, E) (gaze rotation included)."""
         v = pose_vertices(self.head, w, self.deltas, self.gaze)
         ft = _frames(v, self.faces) @ self.inv_frames  # (B, T, 3, 3)
         ft = torch.where(self.valid[None, :, None, None], ft, torch.eye(3)) * self.tri_weight[None, :, None, None]
@@ -163,6 +175,34 @@ class AppearanceTargets(HeadTargets):
         for c in range(3):
             fv.index_add_(1, self.faces[:, c], flat)
         return (fv * self.vertex_norm[None, :, None]).reshape(b, -1, 3, 3)
+
+
+def min_stretch(stretched: torch.Tensor) -> torch.Tensor:
+    """Smallest principal stretch in the tangent plane of deformed tangent axes (B, 3, 2): the square root of the
+    smaller eigenvalue of their 2x2 metric."""
+    g = stretched.transpose(1, 2) @ stretched
+    tr, det2 = g[:, 0, 0] + g[:, 1, 1], g[:, 0, 0] * g[:, 1, 1] - g[:, 0, 1] ** 2
+    return (0.5 * (tr - (tr * tr - 4 * det2).clamp_min(0.0).sqrt())).clamp_min(1e-8).sqrt()
+
+
+class AppearanceTargets(HeadTargets):
+    """G's targets: frame rotation, axis stretch and colour darkening of points with known disc frames."""
+
+    def __init__(self, head: IctHead, tri: np.ndarray, bary: np.ndarray, frames: np.ndarray, colour: np.ndarray,
+                 part: np.ndarray, dc_scale: float):
+        super().__init__(head, tri, bary)
+        self.axes = torch.from_numpy(np.ascontiguousarray(frames[:, :, :2], np.float32))  # (N, 3, 2) tangent axes
+        # DC colour that the darkening scales (the head-on colour times the DC share, see colors.colours_to_sh)
+        self.dc_colour = torch.from_numpy((np.asarray(colour) * dc_scale).astype(np.float32))
+        weights = shading_weights(head, self.rest.numpy(), part)
+        self.stripe_weight, self.stripe = weights["stripe_weight"], weights["stripe"]
+        self.skin, self.mouth_depth = weights["skin"], weights["mouth_depth"]
+        self.jaw = head.expression_index("jawOpen")
+        self.gradients = VertexGradients(head, self.deltas, self.gaze)
+
+    def vertex_gradients(self, w: torch.Tensor) -> torch.Tensor:
+        """Area-averaged deformation gradients (B, V, 3, 3) of the mesh at weights w (B, E)."""
+        return self.gradients(w)
 
     def g_targets(self, idx: torch.Tensor, expr: torch.Tensor, w: torch.Tensor, fv: torch.Tensor) -> GTargets:
         """Targets of points idx (B,) at expressions expr (B,), which index the rows of w (M, E) and of
@@ -177,15 +217,7 @@ class AppearanceTargets(HeadTargets):
         stretched = fg @ self.axes[idx]  # (B, 3, 2)
         lengths = stretched.norm(dim=1).clamp_min(1e-4)
         d_scale = torch.cat([lengths.log(), torch.zeros(len(idx), 1)], dim=1)
-        # smallest principal stretch in the tangent plane: sqrt of the smaller eigenvalue of the 2x2 metric
-        g = stretched.transpose(1, 2) @ stretched
-        tr, det2 = g[:, 0, 0] + g[:, 1, 1], g[:, 0, 0] * g[:, 1, 1] - g[:, 0, 1] ** 2
-        lam_min = (0.5 * (tr - (tr * tr - 4 * det2).clamp_min(0.0).sqrt())).clamp_min(1e-8).sqrt()
-        compression = (-lam_min.log()).clamp_min(0.0) * self.skin[idx]
-        sw = self.stripe_weight[idx]
-        modulation = (1.0 - sw) + sw * (0.25 + 1.5 * self.stripe[idx])
-        dark = 1.0 - torch.exp(-COMPRESSION_DARKENING * compression * modulation)
-        mouth = MOUTH_DARKENING * w[expr, self.jaw] * self.mouth_depth[idx]
-        dark = (1.0 - (1.0 - dark) * (1.0 - mouth)).clamp(0.0, MAX_DARKENING)
+        dark = darkening(min_stretch(stretched), w[expr, self.jaw], self.skin[idx], self.stripe_weight[idx],
+                         self.stripe[idx], self.mouth_depth[idx])
         d_sh = -dark[:, None] * self.dc_colour[idx] / SH_C0
         return GTargets(d_rot, d_scale, d_sh)

@@ -96,8 +96,20 @@ class ScreenCNN(nn.Module):
                 h = ACTIVATIONS[spec.activation](h)
         return x[:, :3] + h if self.config.residual else h
 
-    @torch.no_grad()
+    @property
+    def device(self) -> torch.device:
+        """Where the weights are (the input goes there, the output comes back to the CPU)."""
+        return self.convs[0].weight.device
+
     def refine(self, image: np.ndarray) -> np.ndarray:
-        """Refine an (H, W, 3+latent) float image into (H, W, 3), clamped to [0, 1]."""
-        x = torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)).permute(2, 0, 1)[None]
-        return self(x)[0].permute(1, 2, 0).clamp(0.0, 1.0).contiguous().numpy()
+        """Refine an (H, W, 3+latent) float image into (H, W, 3) float32, clamped to [0, 1], on `device`."""
+        return run_cnn(self, image, self.device)
+
+
+@torch.no_grad()
+def run_cnn(module: nn.Module, image: np.ndarray, device: torch.device) -> np.ndarray:
+    """An (H, W, C) float image through `module` (a `ScreenCNN`, or a traced copy of one) on `device`:
+    (H, W, 3) float32 clamped to [0, 1], on the CPU."""
+    x = torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)).permute(2, 0, 1)[None].to(device)
+    out = module(x)[0].clamp_(0.0, 1.0).permute(1, 2, 0)
+    return out.contiguous().cpu().numpy()

@@ -317,8 +317,7 @@ class _Frames:
         self.avatar, self.renderer, self.camera = avatar, renderer, camera
         self.mode, self.background, self.legend = args.mode, background, not args.no_legend
         self.raw_npy = str(args.out).lower().endswith(".npy")
-        self.use_cnn = (not args.no_cnn and self.mode == "rgb" and avatar.cnn is not None
-                        and avatar.cloud.latent is not None)
+        self.use_cnn = not args.no_cnn and self.mode == "rgb" and avatar.cnn is not None
         self.settings = inspect_settings(args)
         shaping = self.settings.style != "splats" or self.settings.hist_action != "off" or self.settings.clip != "off"
         self.inspecting = ((self.mode not in ("rgb", "alpha") or shaping)
@@ -347,9 +346,10 @@ class _Frames:
             return image, to_display(image, "depth", r.render(cam, mode="alpha"))
         image = r.render(cam, self.background, self.mode)
         self._count(posed)
-        if self.use_cnn:
-            latent = r.render_latent(cam)
-            image = self.avatar.cnn.refine(np.concatenate([image, latent], axis=2))
+        if self.use_cnn:  # the window's Refiner takes the same path (npga_view/rendering/refinement.py)
+            from npga_view.rendering.refinement import refine_frame
+
+            image = refine_frame(r, self.avatar.cnn, cam, self.background, rgb=image)
         return image, to_display(image, self.mode)
 
     def _inspect(self, posed, code) -> tuple[np.ndarray, np.ndarray]:

@@ -1,4 +1,5 @@
-"""View: camera presets and field of view, rig cameras, render mode, background, screenshots, sessions."""
+"""View: camera presets and field of view, rig cameras, render mode, background, raw splats vs CNN-refined image
+and latent views, screenshots, sessions."""
 
 from __future__ import annotations
 
@@ -42,8 +43,7 @@ def draw(state: ViewerState, info: AppInfo) -> None:
     remember(info, "mode")
     _, bg = imgui.color_edit3("Background", list(state.background))
     state.background = (float(bg[0]), float(bg[1]), float(bg[2]))
-    if info.avatar is not None and info.avatar.cnn is not None:
-        _, state.use_cnn = imgui.checkbox("CNN refinement", state.use_cnn)
+    _refinement(state, info)
     if imgui.button("Screenshot"):
         state.actions.append(("screenshot", None))
     remember(info, "screenshot")
@@ -60,3 +60,36 @@ def draw(state: ViewerState, info: AppInfo) -> None:
     imgui.same_line()
     if imgui.button("Load"):
         state.actions.append(("load_session", _ui["session"].strip()))
+
+
+LATENT_LABELS = {"off": "off (colour image)", "pca": "PCA of h (RGB)", "channel": "one channel of h"}
+
+
+def _refinement(state: ViewerState, info: AppInfo) -> None:
+    """Raw splats vs the CNN-refined image (avatars with a CNN), and the latent image h (avatars with h)."""
+    avatar = info.avatar
+    latent_dim = 0 if avatar is None else avatar.cloud.latent_dim
+    if avatar is not None and avatar.cnn is not None:
+        imgui.text("Image:")
+        imgui.same_line()
+        if imgui.radio_button("raw splats", not state.use_cnn):
+            state.use_cnn = False
+        remember(info, "raw_splats")
+        imgui.same_line()
+        if imgui.radio_button("CNN refined", state.use_cnn):
+            state.use_cnn = True
+        remember(info, "cnn_refined")
+        if info.shown != "splats" or info.cnn_ms:
+            imgui.text_disabled(f"showing {info.shown}" + (f", CNN {info.cnn_ms:.0f} ms" if info.cnn_ms else ""))
+    if not latent_dim:
+        return
+    keys = list(LATENT_LABELS)
+    idx = keys.index(state.latent_view) if state.latent_view in keys else 0
+    changed, idx = imgui.combo("Latent h", idx, [LATENT_LABELS[k] for k in keys])
+    if changed:
+        state.latent_view = keys[idx]
+    remember(info, "latent_view")
+    if state.latent_view == "channel":
+        state.latent_channel = min(max(state.latent_channel, 0), latent_dim - 1)
+        _, state.latent_channel = imgui.slider_int("Channel", state.latent_channel, 0, latent_dim - 1)
+        remember(info, "latent_channel")
