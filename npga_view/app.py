@@ -35,6 +35,7 @@ from npga_view.panels.files import AVATAR_EXT
 from npga_view.panels.info import AppInfo
 from npga_view.rendering.gl import window_context
 from npga_view.rendering.renderer import NEAR, SplatRenderer
+from npga_view.rendering.scheduler import DrawScheduler
 from npga_view.state import MAX_SLIDERS, ViewerState
 
 SIDE_PANEL = 400  # logical pixels
@@ -44,7 +45,8 @@ class ViewerApp:
     """One window. Use `run()` for the interactive loop or `step()` to drive it frame by frame (tests)."""
 
     def __init__(self, width: int = 1360, height: int = 900, visible: bool = True, vsync: bool = True,
-                 threads: int = 2, remember_recent: bool = True, device: str = "cpu"):
+                 threads: int = 2, remember_recent: bool = True, device: str = "cpu",
+                 frame_budget_ms: float | None = 25.0):
         if not glfw.init():
             raise RuntimeError("glfw could not initialise (no display? set DISPLAY or use Xvfb)")
         glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 4)
@@ -68,6 +70,13 @@ class ViewerApp:
         imgui.backends.opengl3_init("#version 330")
         self.ctx = window_context()
         self.renderer = SplatRenderer(self.ctx, 64, 64)
+        # frame-budgeted, adaptive-resolution drawing; frame_budget_ms=None draws every change at once in full
+        self.draws = DrawScheduler(self.renderer, budget_ms=frame_budget_ms or 25.0,
+                                   enabled=frame_budget_ms is not None)
+        self.content_version = 0  # incremented whenever the cloud on screen (or how it is coloured) changes
+        # frame_budget_ms=None is the behaviour before budgeting (benchmarks compare both): every change drawn
+        # at once in full, a blank view until the first pose, exact poses only in playback
+        self.legacy = frame_budget_ms is None
         self.state = ViewerState()
         self.info = AppInfo()
         self.threads = threads
@@ -81,8 +90,6 @@ class ViewerApp:
         self.playback: Playback | None = None
         self._colouring = None  # legend of the current Inspect colour mode
         self._inspect_info_due = False
-        self._dirty = True
-        self._render_key: tuple | None = None
         self._last_t = time.perf_counter()
         self._fps_t: list[float] = []
         self.frames = 0
@@ -90,7 +97,7 @@ class ViewerApp:
         self._posed: PosedGaussians | None = None  # a copy of the cloud on screen (before highlighting)
         self.edits = EditController(self, self.code_for_keyframe)
         self.poses = PoseController(self, bake_usable=lambda: self.bakes.usable(),
-                                    keyframe_code=self.edits.keyframe_code)
+                                    keyframe_code=self.edits.keyframe_code, playback_previews=not self.legacy)
         self.bakes = BakeController(self.state, lambda: self.engine, self.poses.sequence_codes, self.poses.bake_key)
         self.recorder = Recorder(lambda: self.read_window(viewport_only=True))
         self.actions = ActionController(self, self.poses, self.bakes, self._toggle_recording)
@@ -135,6 +142,10 @@ class ViewerApp:
         self.poses.first_pose_shown = False
         if avatar.dynamics is not None and avatar.source:
             self._start_engine(avatar.source)
+            # first pixels at once: the canonical cloud, labelled, until the worker's first pose arrives
+            if not self.legacy:
+                self.info.canonical = True
+                self.show(avatar.cloud.posed_static())
         else:
             self.show(avatar.pose())
             self.poses.first_pose_shown = True
@@ -175,7 +186,7 @@ class ViewerApp:
             frame.posed = highlight(frame.posed, session)
             self.renderer.show(frame)
             self._colouring = frame.colouring
-        self._dirty = True
+        self.content_version += 1
         self._inspect_info_due = True
 
     def _inspect_camera_key(self) -> tuple | None:
@@ -422,17 +433,33 @@ class ViewerApp:
         self._inspect_info_due = True
         return idx
 
+    @property
+    def _dirty(self) -> bool:
+        """The current view is not yet on screen at full resolution (an image is pending or being drawn)."""
+        return not self.draws.settled
+
+    def _interacting(self) -> bool:
+        """The view is changing now: a drag or slider, playback, or a pose that will be replaced (a preview
+        or the canonical cloud before the first pose). Draws at the live scale meanwhile."""
+        io = imgui.get_io()
+        info = self.info
+        dragging = not io.want_capture_mouse and any(imgui.is_mouse_down(b) for b in range(3))
+        playing = self.sequence is not None and self.state.follow_sequence and self.state.timeline.playing
+        return (dragging or imgui.is_any_item_active() or playing or self.edits.kf_playing or info.preview
+                or info.canonical)
+
     def _draw_splats(self) -> None:
         cam = self.current_camera()
-        key = (cam.world_to_camera.tobytes(), cam.fx, cam.fy, cam.cx, cam.cy, cam.width, cam.height, self.state.mode)
-        if self._dirty or key != self._render_key:
-            self.renderer.draw(cam, self.state.mode)
-            self._render_key = key
-            self._dirty = False
+        info = self.info
+        exact = not (info.preview or info.canonical or info.interpolated)
+        if self.draws.frame(cam, self.state.mode, self.content_version, self._interacting(), exact_content=exact):
             t = self.renderer.last_timings
-            self.info.timings.update({k: t[k] for k in ("sort", "upload", "preprocess", "draw") if k in t})
-            self.info.gaussians_drawn = int(t.get("visible", 0))
+            info.timings.update({k: t[k] for k in ("sort", "upload", "preprocess", "draw") if k in t})
+            info.gaussians_drawn = int(t.get("visible", 0))
             self._inspect_info_due = True
+            self.poses.presented(self.draws.shown_version)
+        info.draw_scale, info.image_status = self.draws.scale, self.draws.status
+        info.image_ms, info.draw_progress = self.draws.last_image_ms, self.draws.progress
         if self._inspect_info_due and self.inspector is not None and self._posed is not None \
                 and len(self._posed) == len(self.avatar):
             self._inspect_info_due = False
@@ -463,8 +490,6 @@ class ViewerApp:
         for panel in panels.SIDE:
             panel.draw(self.state, self.info)
         imgui.end()
-        for panel in panels.OVERLAYS:
-            panel.draw(self.state, self.info)
 
     def step(self) -> None:
         """One frame: input, panels, actions, dynamics, splats, UI."""
@@ -490,6 +515,8 @@ class ViewerApp:
         self.ctx.viewport = (0, 0, fw, fh)
         self.ctx.clear(0.08, 0.08, 0.09, 1.0)
         self._draw_splats()
+        for panel in panels.OVERLAYS:  # after drawing, so that they report this frame's image
+            panel.draw(self.state, self.info)
         self.recorder.frame()
         imgui.render()
         imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())

@@ -54,6 +54,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--kernel", choices=("auto", "onednn", "aten"), default="auto",
                    help="hidden layers on oneDNN (fused bias + ReLU) or torch.mm (default auto: oneDNN if usable)")
     p.add_argument("--no-render", action="store_true", help="skip OpenGL (no draw timings, no PSNR)")
+    p.add_argument("--window", action="store_true",
+                   help="measure the real window on its pixels instead (first pixels, slider, orbit, playback; "
+                        "frame budgeting on and off; --gaussians sizes besides the demo; Xvfb if no DISPLAY)")
+    p.add_argument("--window-seconds", type=float, default=6.0, help="length of each window run (default 6)")
 
 
 # -- small measuring helpers -------------------------------------------------------------------------------
@@ -535,6 +539,13 @@ def _cpu_name() -> str:
 
 
 def run(args: argparse.Namespace) -> int:
+    if args.window:
+        from npga_view.cli.bench_window import run as run_window
+
+        sizes = [n for n in args.gaussians if n != 20000] if args.gaussians == list(DEFAULT_SIZES) else args.gaussians
+        run_window(sizes, demo=not args.avatars, json_path=args.json, moves=min(args.moves, 6),
+                   seconds=args.window_seconds)
+        return 0
     from npga_core.files.checkpoint import save_avatar
     from npga_core.files.loading import DEMO_AVATAR
     from npga_core.model.synthetic import make_synthetic_avatar

@@ -30,6 +30,7 @@ class ViewerHost(Protocol):
     engine: PoseEngine | None
     sequence: ExpressionSequence | None
     playback: Playback | None
+    content_version: int  # incremented by every `show`
 
     def adopt_avatar(self, avatar: Avatar, path: str) -> None:
         """Show `avatar` (loaded from `path`) as the open avatar."""

@@ -22,8 +22,9 @@ class PoseController:
     """Owned by the app; `update(dt)` runs once per UI frame. See the module docstring."""
 
     def __init__(self, host: ViewerHost, bake_usable: Callable[[], bool],
-                 keyframe_code: Callable[[], np.ndarray | None]):
+                 keyframe_code: Callable[[], np.ndarray | None], playback_previews: bool = True):
         self.host = host
+        self.playback_previews = playback_previews  # real-time playback may show previews to keep the clock
         self._bake_usable = bake_usable
         self._keyframe_code = keyframe_code
         self.codes: np.ndarray | None = None  # the sequence's (smoothed) codes
@@ -39,6 +40,7 @@ class PoseController:
         self.shown_frame: int | None = None
         self.requested_frame: int | None = None
         self._frame_of_request: dict[int, int | None] = {}  # pending request id -> sequence frame it shows
+        self._frame_of_version: dict[int, int] = {}  # content version uploaded -> sequence frame it shows
 
     def engine_restarted(self) -> None:
         """A new worker: ask it for the current code again."""
@@ -108,10 +110,13 @@ class PoseController:
             return
         following = self.following()
         if code is not None and (self.requested is None or not np.array_equal(code, self.requested)):
+            tl = host.state.timeline
             if following and self._bake_usable():
                 req = eng.request_frame(self.requested_frame)
-            else:  # sliders: a fast preview first, then the exact pose; live playback: exact poses only
-                req = eng.request(code, mode="exact" if following else "auto")
+            else:  # sliders and real-time playback: a fast preview while exact poses are slow, then the exact
+                # pose (abandoned when the clock has moved on); every-frame playback: exact poses only
+                exact_only = following and ((tl.playing and tl.every_frame) or not self.playback_previews)
+                req = eng.request(code, mode="exact" if exact_only else "auto")
             self.requested = code.copy()
             self._frame_of_request[req] = self.requested_frame if following else None
         elif following and code is not None and self.shown_frame != self.requested_frame \
@@ -136,22 +141,37 @@ class PoseController:
         if result is None:
             return
         host, info = self.host, self.host.info
+        info.canonical = False
+        frame = self._frame_of_request.get(result.request_id)
         if len(result.posed) == len(host.avatar):
             p = result.posed
             self.shown_code = result.code
             host.show(PosedGaussians(p.means.copy(), p.quats.copy(), p.scales.copy(), p.opacities.copy(),
                                      p.sh.copy(), None if p.latent is None else p.latent.copy()))
+            if frame is not None:
+                self._frame_of_version[host.content_version] = frame
         result.release()
         info.timings.update({k: v for k, v in result.timings.items() if k in ("F", "G")})
         self.shown_code = result.code
         info.preview = bool(result.preview) and not result.baked
         info.baked, info.interpolated = result.baked, result.baked and result.preview
+        if frame is not None:  # a preview shows its frame too (playback follows the clock with previews)
+            self.shown_frame = frame
         if info.preview:  # the exact pose of this request follows: keep its frame bookkeeping
             return
-        frame = self._frame_of_request.get(result.request_id)
         self._frame_of_request = {k: v for k, v in self._frame_of_request.items() if k > result.request_id}
-        if frame is not None and host.playback is not None:
-            self.shown_frame = frame
-            host.playback.shown(frame, time.perf_counter(), host.state.timeline.playing)
         self.first_pose_shown = True
         self.changed = True
+
+    def presented(self, version: int) -> None:
+        """An image of content `version` reached the screen: the sequence frame it shows counts as shown
+        (playback's achieved rate and skipped count are of frames on screen, not of poses computed)."""
+        done = [v for v in self._frame_of_version if v <= version]
+        if not done:
+            return
+        frame = self._frame_of_version[max(done)]
+        for v in done:
+            del self._frame_of_version[v]
+        pb = self.host.playback
+        if pb is not None:
+            pb.shown(frame, time.perf_counter(), self.host.state.timeline.playing)

@@ -29,10 +29,21 @@ def _body(info: AppInfo) -> None:
     total = len(a) if a is not None else 0
     imgui.text(f"Gaussians: {total:,} total, {info.gaussians_drawn:,} in front of the camera")
     imgui.text(f"UI: {info.fps:5.1f} fps" + ("   posing..." if info.posing else ""))
-    if info.preview:
-        imgui.text_colored(imgui.ImVec4(1.0, 0.8, 0.3, 1.0), "preview (refining to the exact pose)")
+    amber = imgui.ImVec4(1.0, 0.8, 0.3, 1.0)
+    if info.canonical:
+        imgui.text_colored(amber, "canonical cloud (the first pose is on its way)")
+    elif info.preview:
+        imgui.text_colored(amber, "preview pose (refining to the exact pose)")
     elif info.baked:
         imgui.text("baked frame" + (" (interpolated)" if info.interpolated else ""))
+    status = info.image_status
+    line = f"image: {status}, scale {info.draw_scale:.2f}, {info.image_ms:.0f} ms"
+    if status == "refining":
+        line += f" ({info.draw_progress:.0%} drawn)"
+    if status == "exact":
+        imgui.text(line)
+    else:
+        imgui.text_colored(amber, line)
     es = info.engine_status
     if es.get("device"):
         imgui.text(f"dynamics on {es['device']} ({es.get('kernel', '?')}), first layer {es.get('first_layer', '?')}")

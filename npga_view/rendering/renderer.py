@@ -419,10 +419,12 @@ class SplatRenderer(AuxiliaryPasses):
         camera, external = self._job_camera, self._job_framebuffer
         fbo = external if external is not None else self._targets[1][1]
         t_start = time.perf_counter()
+        first_slice = True
         while job.next < job.total:
             remaining = budget_ms - (time.perf_counter() - t_start) * 1e3
-            if job.slices and remaining <= 0:
+            if not first_slice and remaining <= 0:
                 break
+            first_slice = False
             if math.isinf(budget_ms):
                 count = job.total - job.next
             else:

@@ -1,0 +1,222 @@
+"""`npga-view bench --window`: what a person sees in the real window, measured on its pixels.
+
+Drives the real `ViewerApp` (under the current DISPLAY, or a private Xvfb) at 1360x900 and reads the splat
+view's pixels back every UI frame. For each avatar it measures, with frame-budgeted adaptive drawing on and
+off (the behaviour before it) in the same run:
+
+- first pixels: from opening the window to the first frame whose view is not empty;
+- slider move (PC 1 by +-1 sd, as the Expression panel sets it) -> first changed pixels, and -> the exact
+  full-resolution image on screen (median and p90 over the moves);
+- orbit (2 degrees per UI frame): complete images per second (distinct view images) and UI frames per second,
+  then the time from the last orbit step to the exact full-resolution image;
+- live playback of a 25 fps sequence: distinct view images per second and the playback's achieved rate;
+- baked playback: distinct view images per second.
+"""
+
+from __future__ import annotations
+
+import json
+import os
+import shutil
+import subprocess
+import tempfile
+import time
+import zlib
+from pathlib import Path
+
+import numpy as np
+
+SIZE = (1360, 900)
+
+
+def _start_xvfb() -> subprocess.Popen | None:
+    """A private Xvfb when there is no DISPLAY (None when one is set)."""
+    if os.environ.get("DISPLAY"):
+        return None
+    exe = shutil.which("Xvfb")
+    if exe is None:
+        raise RuntimeError("no DISPLAY and no Xvfb (apt-get install xvfb)")
+    for n in range(150, 200):
+        if Path(f"/tmp/.X{n}-lock").exists() or Path(f"/tmp/.X11-unix/X{n}").exists():
+            continue
+        proc = subprocess.Popen([exe, f":{n}", "-screen", "0", "1920x1200x24", "-nolisten", "tcp", "-noreset"],
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+        for _ in range(100):
+            if Path(f"/tmp/.X11-unix/X{n}").exists():
+                os.environ["DISPLAY"] = f":{n}"
+                return proc
+            if proc.poll() is not None:
+                break
+            time.sleep(0.05)
+        proc.kill()
+    raise RuntimeError("could not start Xvfb")
+
+
+class _Watcher:
+    """Steps the app and fingerprints the splat view's pixels after every UI frame."""
+
+    def __init__(self, app):
+        self.app = app
+        self.last = None
+
+    def step(self) -> bool:
+        """One UI frame; True if the view's pixels changed."""
+        self.app.step()
+        img = self.app.read_window(viewport_only=True)
+        fp = (zlib.crc32(img[::4, ::4].tobytes()), int(img.max()))
+        changed = fp != self.last
+        self.last = fp
+        return changed
+
+    def until(self, cond, timeout: float) -> float | None:
+        """Step until `cond()`; seconds it took, or None on timeout."""
+        t0 = time.perf_counter()
+        while time.perf_counter() - t0 < timeout:
+            self.step()
+            if cond():
+                return time.perf_counter() - t0
+        return None
+
+
+def _exact(app) -> bool:
+    eng = app.engine
+    return (app.draws.settled and not app.info.preview and not app.info.canonical
+            and (eng is None or eng.pending is None))
+
+
+def _stats(values: list[float]) -> dict:
+    v = [x for x in values if x is not None]
+    if not v:
+        return {"median": None, "p90": None, "n": 0}
+    return {"median": float(np.median(v)), "p90": float(np.percentile(v, 90)), "n": len(v)}
+
+
+def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, seconds: float = 6.0) -> dict:
+    """All figures for one avatar with budgeting on or off."""
+    from npga_view.app import ViewerApp
+
+    t_open = time.perf_counter()
+    app = ViewerApp(*SIZE, vsync=False, threads=2, remember_recent=False,
+                    frame_budget_ms=25.0 if budget else None)
+    w = _Watcher(app)
+    out: dict = {"avatar": Path(avatar).name if avatar != "demo" else "demo", "budget": budget}
+    try:
+        app.open_avatar(avatar)
+        out["gaussians"] = len(app.avatar)
+        w.until(lambda: int(app.read_window(viewport_only=True).max()) > 0, 120)
+        out["first_pixels_s"] = time.perf_counter() - t_open
+        w.until(lambda: _exact(app), 300)
+        out["first_exact_s"] = time.perf_counter() - t_open
+        # slider moves
+        first, exact = [], []
+        for k in range(moves):
+            w.step()
+            app.state.follow_sequence = False
+            app.state.sliders[0] += 1.0 if k % 2 == 0 else -1.0
+            t0 = time.perf_counter()
+            changed = None
+            while time.perf_counter() - t0 < 60:
+                if w.step():
+                    changed = time.perf_counter() - t0
+                    break
+            first.append(changed)
+            done = w.until(lambda: _exact(app), 120)
+            exact.append(None if done is None else time.perf_counter() - t0)
+        out["slider_changed_s"] = _stats(first)
+        out["slider_exact_s"] = _stats(exact)
+        # orbit
+        frames0, images, t0 = app.frames, 0, time.perf_counter()
+        while time.perf_counter() - t0 < seconds:
+            app.state.camera.orbit(2.0, 0.0)
+            images += w.step()
+        dt = time.perf_counter() - t0
+        out["orbit_images_per_s"] = images / dt
+        out["orbit_ui_fps"] = (app.frames - frames0) / dt
+        out["orbit_scale"] = app.draws.scale
+        t0 = time.perf_counter()
+        done = w.until(lambda: _exact(app), 120)
+        out["orbit_exact_after_s"] = None if done is None else time.perf_counter() - t0
+        if sequence and app.avatar.dynamics is not None:
+            app.open_sequence(sequence)
+            out.update(_playback(app, w, seconds, baked=False))
+            app.state.timeline.playing = False
+            app.state.actions.append(("bake", None))
+            w.until(lambda: app.bakes.state() == "ready", 300)
+            out.update(_playback(app, w, seconds, baked=True))
+        return out
+    finally:
+        app.close()
+
+
+def _playback(app, w: _Watcher, seconds: float, baked: bool) -> dict:
+    tl = app.state.timeline
+    tl.playing, tl.time_s = True, 0.0
+    app.state.follow_sequence = True
+    app.playback.reset_stats()
+    images, frames0, t0 = 0, app.frames, time.perf_counter()
+    while time.perf_counter() - t0 < seconds:
+        images += w.step()
+    dt = time.perf_counter() - t0
+    tl.playing = False
+    key = "baked" if baked else "live"
+    return {f"{key}_images_per_s": images / dt, f"{key}_achieved_fps": app.playback.achieved_fps(),
+            f"{key}_ui_fps": (app.frames - frames0) / dt, f"{key}_skipped": app.playback.skipped}
+
+
+def _synthetic(n: int, folder: Path) -> tuple[str, str]:
+    from npga_core.files.checkpoint import save_avatar
+    from npga_core.files.sequences import ExpressionSequence
+    from npga_core.model.synthetic import make_synthetic_avatar
+
+    a = make_synthetic_avatar(n, seed=0)
+    path = folder / f"syn{n // 1000}k.npga"
+    save_avatar(a, path)
+    t = np.arange(200)
+    codes = np.stack([a.expression.from_sliders(np.array([2 * np.sin(i / 6), 2 * np.cos(i / 9)])) for i in t])
+    seq = folder / f"seq{n}.npzseq"
+    ExpressionSequence(codes.astype(np.float32), 25.0).save(seq)
+    return str(path), str(seq)
+
+
+def run(gaussians: list[int], demo: bool, json_path: Path | None, moves: int = 6, seconds: float = 6.0) -> list[dict]:
+    """Measure the demo and synthetic avatars of the given sizes, budgeting on and off, and print a table."""
+    from npga_core.files.loading import DEMO_DIR
+
+    proc = _start_xvfb()
+    results = []
+    try:
+        with tempfile.TemporaryDirectory() as tmp:
+            cases = []
+            if demo:
+                seq = DEMO_DIR / "sequences" / "talking.npzseq"
+                cases.append(("demo", str(seq) if seq.is_file() else None))
+            cases += [_synthetic(n, Path(tmp)) for n in gaussians]
+            for avatar, seq in cases:
+                for budget in (True, False):
+                    results.append(measure(avatar, seq, budget, moves, seconds))
+                    print(json.dumps(results[-1]), flush=True)
+    finally:
+        if proc is not None:
+            proc.terminate()
+    if json_path is not None:
+        json_path.write_text(json.dumps(results, indent=1))
+    print(table(results))
+    return results
+
+
+def table(results: list[dict]) -> str:
+    """A markdown table of the figures (one row per avatar and mode)."""
+    def f(v, fmt="{:.2f}"):
+        return "-" if v is None else fmt.format(v)
+
+    rows = ["| avatar | budget | first pixels s | slider -> changed s (med / p90) | slider -> exact s (med) "
+            "| orbit images/s | orbit UI fps | orbit -> exact s | live images/s | baked images/s |",
+            "|---|---|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        sc, se = r.get("slider_changed_s", {}), r.get("slider_exact_s", {})
+        rows.append(f"| {r['avatar']} | {'on' if r['budget'] else 'off'} | {f(r.get('first_pixels_s'))} | "
+                    f"{f(sc.get('median'))} / {f(sc.get('p90'))} | {f(se.get('median'))} | "
+                    f"{f(r.get('orbit_images_per_s'), '{:.1f}')} | {f(r.get('orbit_ui_fps'), '{:.1f}')} | "
+                    f"{f(r.get('orbit_exact_after_s'))} | {f(r.get('live_images_per_s'), '{:.1f}')} | "
+                    f"{f(r.get('baked_images_per_s'), '{:.1f}')} |")
+    return "\n".join(rows)

@@ -1,0 +1,174 @@
+"""`DrawScheduler`: what the splat view draws each UI frame, at which resolution, within a time budget.
+
+The window must stay responsive on a 2-core CPU with a software GL (llvmpipe: the demo takes 0.2-0.5 s to
+draw at full resolution) as on a workstation GPU (a millisecond). Each UI frame the app hands the scheduler
+the view's camera, the render mode, a version number of the cloud on screen and whether the person is
+interacting (dragging, moving sliders, playing). The scheduler then
+
+- draws for at most `budget_ms` per UI frame: an image is started with `SplatRenderer.begin_draw` and
+  continued with `continue_draw(budget)` over the following frames; the previous finished image stays on
+  screen until the new one is complete (slices blend the same sorted order, so the pixels are those of one
+  draw);
+- while the view changes (and for `settle_s` after), draws at a reduced `scale` chosen from the measured
+  cost of the last images so that a complete image takes about `interactive_ms` of drawing; the image is
+  upscaled bilinearly to the viewport;
+- once input stops, draws the current view at full resolution ("refining"), then stops drawing ("exact",
+  if the cloud on screen is the exact pose, else "preview").
+
+An unfinished image is finished even if the view changed meanwhile (so complete images keep coming during a
+long drag), unless it is a full-resolution refinement that a new interaction makes pointless: that one is
+dropped. With `enabled=False` every change is drawn at once at full resolution inside the frame (the
+behaviour before budgeting; benchmarks compare both).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass
+
+from npga_core.camera.cameras import Camera
+from npga_view.rendering.renderer import SplatRenderer, camera_key
+
+
+def scaled_camera(camera: Camera, scale: float) -> Camera:
+    """`camera` at `scale` times its resolution (same field of view; at least 16 px a side)."""
+    if scale >= 1.0:
+        return camera
+    w = max(16, round(camera.width * scale))
+    h = max(16, round(camera.height * scale))
+    return camera.resized(w, h)
+
+
+@dataclass
+class _Image:
+    target: tuple  # (camera key at full resolution, mode, content version)
+    scale: float
+    exact_content: bool  # the cloud drawn was the exact pose (not a preview)
+    live: bool = False  # drawn at the live scale while the view changed
+
+
+class DrawScheduler:
+    """See the module docstring. `frame()` once per UI frame; `status` and `scale` describe the shown image."""
+
+    def __init__(self, renderer: SplatRenderer, budget_ms: float = 25.0, interactive_ms: float = 120.0,
+                 min_scale: float = 0.2, settle_s: float = 0.3, enabled: bool = True):
+        self.renderer = renderer
+        self.budget_ms = budget_ms
+        self.interactive_ms = interactive_ms
+        self.min_scale = min_scale
+        self.settle_s = settle_s
+        self.enabled = enabled
+        self.interactive_scale = 0.5  # the scale for live images, adapted to the measured cost
+        self._shown: _Image | None = None
+        self._job: _Image | None = None
+        self._job_t0 = 0.0
+        self._target: tuple | None = None
+        self._last_change = -math.inf
+        self.last_image_ms = 0.0  # drawing time (pre-pass + slices) of the last finished image
+        self.last_image_wall_ms = 0.0  # wall time from its start to its end (spans UI frames)
+        self.images = 0  # finished images so far
+
+    # ----------------------------------------------------------------------------------------- state
+    @property
+    def scale(self) -> float:
+        """Resolution scale of the image on screen (1.0 = full)."""
+        return 1.0 if self._shown is None else self._shown.scale
+
+    @property
+    def status(self) -> str:
+        """"preview" (reduced resolution or a preview pose), "refining" (a full-resolution image of the
+        current view is being drawn) or "exact" (the full-resolution image of the exact pose is on screen)."""
+        shown, job = self._shown, self._job
+        if shown is not None and shown.target == self._target and shown.scale >= 1.0:
+            return "exact" if shown.exact_content else "preview"
+        if job is not None and job.target == self._target and job.scale >= 1.0:
+            return "refining"
+        return "preview"
+
+    @property
+    def shown_version(self) -> int:
+        """Content version of the image on screen (-1 before the first)."""
+        return -1 if self._shown is None else self._shown.target[2]
+
+    @property
+    def settled(self) -> bool:
+        """The current view is on screen at full resolution and nothing is being drawn."""
+        shown = self._shown
+        return self._job is None and shown is not None and shown.target == self._target and shown.scale >= 1.0
+
+    @property
+    def progress(self) -> float:
+        """How much of the image being drawn is done (1.0 when none)."""
+        return self.renderer.progress if self._job is not None else 1.0
+
+    def invalidate(self) -> None:
+        """Forget the shown image (e.g. the renderer's targets were dropped): the next frame draws anew."""
+        self._shown = None
+        self._job = None
+        self.renderer.cancel_draw()
+
+    # ---------------------------------------------------------------------------------------- per frame
+    def frame(self, camera: Camera, mode: str, content_version: int, interacting: bool,
+              exact_content: bool = True, now: float | None = None) -> bool:
+        """Advance drawing for this UI frame; True when a new finished image was swapped to the front."""
+        frame_start = time.perf_counter()
+        now = frame_start if now is None else now
+        target = (camera_key(camera), mode, content_version)
+        if target != self._target:
+            self._target = target
+            if self._shown is not None:  # the first image of a view is not an interaction
+                self._last_change = now
+        live = interacting or (now - self._last_change) < self.settle_s
+        r = self.renderer
+        if not self.enabled:
+            if self._shown is not None and self._shown.target == target and self._shown.scale >= 1.0:
+                return False
+            self._start(camera, mode, _Image(target, 1.0, exact_content), now)
+            return self._continue(math.inf, frame_start)
+        job = self._job
+        if job is not None and not r.drawing:  # dropped by the renderer (another pass re-ran the pre-pass)
+            self._job = job = None
+        if job is not None and job.target != target and live and job.scale > self.interactive_scale + 1e-6:
+            r.cancel_draw()  # a full-resolution refinement of a view the person has already left
+            self._job = job = None
+        if job is None:
+            want = self.interactive_scale if live else 1.0
+            shown = self._shown
+            stale = shown is None or shown.target != target or shown.exact_content != exact_content
+            if stale or shown.scale < want:
+                if shown is None:  # first image: as fast as possible, refined right after
+                    want = self.interactive_scale
+                self._start(camera, mode, _Image(target, want, exact_content, live=live or shown is None), now)
+        if self._job is None:
+            return False
+        return self._continue(self.budget_ms, frame_start)
+
+    def _start(self, camera: Camera, mode: str, image: _Image, now: float) -> None:
+        self.renderer.begin_draw(scaled_camera(camera, image.scale), mode)
+        self._job = image
+        self._job_t0 = now
+
+    def _continue(self, budget_ms: float, frame_start: float) -> bool:
+        """Draw until `budget_ms` after `frame_start` is spent (the pre-pass of a new image counts)."""
+        r = self.renderer
+        left = budget_ms - (time.perf_counter() - frame_start) * 1e3
+        if not r.continue_draw(max(left, 1.0)):
+            return False
+        job, self._job = self._job, None
+        t = r.last_timings
+        self.last_image_ms = t.get("draw", 0.0) + t.get("sort", 0.0) + t.get("preprocess", 0.0)
+        self.last_image_wall_ms = (time.perf_counter() - self._job_t0) * 1e3
+        self.images += 1
+        self._shown = job
+        if job.live:
+            self._adapt(job.scale, self.last_image_ms)
+        return True
+
+    def _adapt(self, scale: float, image_ms: float) -> None:
+        """Choose the live scale from the cost of an image drawn at `scale` (damped, within limits)."""
+        if image_ms <= 0:
+            return
+        factor = math.sqrt(self.interactive_ms / image_ms)
+        new = min(1.0, max(self.min_scale, scale * min(1.6, max(0.6, factor))))
+        self.interactive_scale = round(new, 3)

@@ -1,0 +1,157 @@
+"""Frame-budgeted drawing (#14): slices and points give the pixels of one quad draw; the scheduler's images.
+
+Headless (EGL / OSMesa llvmpipe). The renderer's images are checked against the independent reference
+rasterizer in tests/test_renderer.py; here the new paths are checked against the established quad path.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from npga_core.camera.cameras import frame_points
+from npga_core.model.gaussians import PosedGaussians
+from npga_core.model.synthetic import make_synthetic_avatar
+from npga_view.rendering.renderer import SplatRenderer
+from npga_view.rendering.scheduler import DrawScheduler, scaled_camera
+
+
+@pytest.fixture(scope="module")
+def posed() -> PosedGaussians:
+    return make_synthetic_avatar(6000, seed=11).pose()
+
+
+@pytest.fixture(scope="module")
+def renderer(ctx, posed):
+    r = SplatRenderer(ctx, 64, 64)
+    r.set_gaussians(posed)
+    yield r
+    r.release()
+
+
+def _image(r: SplatRenderer) -> np.ndarray:
+    w, h = r.image_size
+    return r._read(r._fbo, 0, w, h).copy()
+
+
+def test_points_path_equals_quads(renderer, posed):
+    cam = frame_points(posed.means, 160, 140)
+    renderer.use_points = False
+    quads = renderer.render(cam)
+    assert renderer.last_timings["points"] == 0.0
+    renderer.use_points = True
+    points = renderer.render(cam)
+    assert renderer.last_timings["points"] == 1.0
+    assert quads.max() > 0.1
+    np.testing.assert_array_equal(points, quads)
+
+
+def test_oversize_splats_fall_back_to_quads(ctx, posed):
+    """A splat larger than the largest GL point is drawn as a quad: the image still equals the quad path's."""
+    big = PosedGaussians(posed.means.copy(), posed.quats.copy(), posed.scales.copy(), posed.opacities.copy(),
+                         posed.sh.copy())
+    big.scales[0] = 0.5  # half a metre: hundreds of pixels wide
+    big.opacities[0] = 0.5
+    r = SplatRenderer(ctx, 64, 64)
+    try:
+        r.set_gaussians(big)
+        cam = frame_points(posed.means, 400, 350)
+        points_allowed = r.render(cam)
+        assert r._oversize >= 1 and r.last_timings["points"] == 0.0
+        r.use_points = False
+        np.testing.assert_array_equal(points_allowed, r.render(cam))
+    finally:
+        r.release()
+
+
+@pytest.mark.parametrize("points", [False, True])
+def test_slices_compose_to_one_draw(renderer, posed, points):
+    renderer.use_points = points
+    cam = frame_points(posed.means, 200, 180, direction="three_quarter_right")
+    renderer.draw(cam)
+    one = _image(renderer)
+    renderer.begin_draw(cam)
+    steps = 0
+    while not renderer.continue_draw(0.0):  # the smallest budget: one minimal slice per call
+        steps += 1
+        assert renderer.drawing and 0.0 < renderer.progress < 1.0
+    assert renderer.last_timings["slices"] >= 2 and steps >= 1
+    np.testing.assert_array_equal(_image(renderer), one)
+
+
+def test_finished_image_stays_in_front_while_the_next_is_drawn(renderer, posed):
+    renderer.use_points = True
+    front = frame_points(posed.means, 120, 100, direction="front")
+    side = frame_points(posed.means, 120, 100, direction="right")
+    renderer.draw(front)
+    first = _image(renderer)
+    renderer.begin_draw(side)
+    assert not renderer.continue_draw(0.0)
+    np.testing.assert_array_equal(_image(renderer), first)  # the unfinished side view is not shown
+    renderer.continue_draw(math.inf)
+    assert not np.array_equal(_image(renderer), first)
+
+
+def test_another_prepass_drops_the_unfinished_image(renderer, posed):
+    cam = frame_points(posed.means, 150, 130)
+    renderer.begin_draw(cam)
+    renderer.continue_draw(0.0)
+    renderer.pick(frame_points(posed.means, 151, 130), 70, 60)  # a different camera: a new pre-pass
+    assert not renderer.drawing
+
+
+def test_scheduler_reduces_scale_while_live_and_refines_after(renderer, posed):
+    renderer.use_points = True
+    sched = DrawScheduler(renderer, budget_ms=1.0, interactive_ms=1e-3, min_scale=0.25, settle_s=0.0)
+    cam = frame_points(posed.means, 240, 200)
+    t = 0.0
+    # live: images at the reduced scale, several UI frames each
+    frames = 0
+    while sched.images < 3:  # 0.5, then damped steps down to the minimum
+        sched.frame(cam, "rgb", content_version=sched.images, interacting=True, now=t)
+        t += 0.04
+        frames += 1
+        assert frames < 500
+    assert sched.scale == pytest.approx(0.25) and sched.status == "preview"
+    assert renderer.image_size == (60, 50)
+    # input stops: the current view is refined to full resolution, then drawing stops
+    version = sched.shown_version
+    while not sched.settled:
+        sched.frame(cam, "rgb", content_version=version, interacting=False, now=t)
+        t += 0.04
+        frames += 1
+        assert frames < 2000
+    assert sched.scale == 1.0 and sched.status == "exact" and renderer.image_size == (240, 200)
+    refined = _image(renderer)
+    assert not sched.frame(cam, "rgb", content_version=version, interacting=False, now=t)  # nothing to draw
+    renderer.draw(cam)
+    np.testing.assert_array_equal(refined, _image(renderer))
+
+
+def test_scheduler_labels_a_preview_pose_until_the_exact_one(renderer, posed):
+    sched = DrawScheduler(renderer, budget_ms=math.inf, settle_s=0.0)
+    cam = frame_points(posed.means, 120, 100)
+    for _ in range(5):
+        sched.frame(cam, "rgb", content_version=1, interacting=False, exact_content=False, now=0.0)
+    assert sched.settled and sched.status == "preview"
+    sched.frame(cam, "rgb", content_version=2, interacting=False, exact_content=True, now=1.0)
+    sched.frame(cam, "rgb", content_version=2, interacting=False, exact_content=True, now=1.0)
+    assert sched.status == "exact"
+
+
+def test_disabled_scheduler_draws_each_change_at_once(renderer, posed):
+    sched = DrawScheduler(renderer, enabled=False)
+    cam = frame_points(posed.means, 130, 110)
+    assert sched.frame(cam, "rgb", 1, interacting=True)
+    assert sched.scale == 1.0 and renderer.image_size == (130, 110)
+    assert not sched.frame(cam, "rgb", 1, interacting=True)
+
+
+def test_scaled_camera_keeps_the_field_of_view(posed):
+    cam = frame_points(posed.means, 400, 300)
+    small = scaled_camera(cam, 0.25)
+    assert (small.width, small.height) == (100, 75)
+    assert small.tan_half_fov_x == pytest.approx(cam.tan_half_fov_x, rel=1e-6)
+    assert small.tan_half_fov_y == pytest.approx(cam.tan_half_fov_y, rel=1e-6)
