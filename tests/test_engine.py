@@ -47,3 +47,39 @@ def test_wrong_dimension_reported_not_fatal(small_npga):
         r = eng.wait()
         assert r is not None and eng.alive
         r.release()
+
+
+def _shm_exists(name: str) -> bool:
+    from multiprocessing import shared_memory
+
+    try:
+        shared_memory.SharedMemory(name=name).close()
+    except FileNotFoundError:
+        return False
+    return True
+
+
+def test_close_twice_and_dropping_an_engine_stop_the_worker(small_npga):
+    """close() is idempotent; an engine dropped without close() still stops its worker and unlinks its slots
+    (weakref.finalize, also run at interpreter exit)."""
+    import gc
+    import time
+
+    a, eng = _engine(small_npga)
+    eng.request(a.neutral_code())
+    eng.wait().release()
+    names, proc = eng.shm_names, eng._proc
+    eng.close()
+    eng.close()
+    assert not proc.is_alive() and not any(_shm_exists(n) for n in names)
+
+    a, eng = _engine(small_npga)
+    eng.request(a.neutral_code())
+    eng.wait().release()
+    names, proc = eng.shm_names, eng._proc
+    del eng
+    gc.collect()
+    end = time.monotonic() + 60  # a bound on waiting, not a speed
+    while proc.is_alive() and time.monotonic() < end:
+        time.sleep(0.05)
+    assert not proc.is_alive() and not any(_shm_exists(n) for n in names)
