@@ -5,8 +5,20 @@ from __future__ import annotations
 import os
 import shutil
 import subprocess
+import sys
 import time
 from pathlib import Path
+
+
+def _die_with_parent() -> None:
+    """In the Xvfb child before exec (Linux): SIGTERM it when the test process dies, even by SIGKILL, so a
+    killed test run leaves no display server behind (#16)."""
+    import contextlib
+    import ctypes
+    import signal
+
+    with contextlib.suppress(OSError, AttributeError):
+        ctypes.CDLL(None, use_errno=True).prctl(1, int(signal.SIGTERM), 0, 0, 0)  # PR_SET_PDEATHSIG
 
 
 def start_xvfb(width: int = 1600, height: int = 1000) -> tuple[subprocess.Popen, str]:
@@ -20,7 +32,8 @@ def start_xvfb(width: int = 1600, height: int = 1000) -> tuple[subprocess.Popen,
         # -noreset: without it the server resets whenever its last client disconnects, and a window opened
         # during that reset fails with "Failed to open display" (seen between GUI tests)
         proc = subprocess.Popen([exe, f":{n}", "-screen", "0", f"{width}x{height}x24", "-nolisten", "tcp", "-noreset"],
-                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+                                stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL,
+                                preexec_fn=_die_with_parent if sys.platform.startswith("linux") else None)
         for _ in range(100):
             if Path(f"/tmp/.X11-unix/X{n}").exists():
                 return proc, f":{n}"
