@@ -9,6 +9,7 @@ from __future__ import annotations
 import ctypes
 import sys
 import time
+import warnings
 from pathlib import Path
 
 import numpy as np
@@ -33,8 +34,9 @@ from npga_view.controllers.recording import Recorder
 from npga_view.imgui_glfw import glfw, imgui
 from npga_view.panels.files import AVATAR_EXT
 from npga_view.panels.info import AppInfo
-from npga_view.rendering.gl import window_context
-from npga_view.rendering.renderer import NEAR, SplatRenderer
+from npga_view.rendering.factory import create_renderer
+from npga_view.rendering.gl import release_current_egl, window_context
+from npga_view.rendering.renderer import NEAR
 from npga_view.rendering.scheduler import DrawScheduler
 from npga_view.state import MAX_SLIDERS, ViewerState
 
@@ -47,18 +49,25 @@ class ViewerApp:
     def __init__(self, width: int = 1360, height: int = 900, visible: bool = True, vsync: bool = True,
                  threads: int = 2, remember_recent: bool = True, device: str = "cpu",
                  frame_budget_ms: float | None = 25.0):
+        release_current_egl()  # a current headless context of this process would make the window's GLX fail
         if not glfw.init():
             raise RuntimeError("glfw could not initialise (no display? set DISPLAY or use Xvfb)")
-        glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 4)
-        glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, 3)
         glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
-        glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)
+        glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)  # macOS gives core contexts only forward-compatible
         glfw.window_hint(glfw.VISIBLE, visible)
         glfw.window_hint(glfw.SCALE_TO_MONITOR, True)
-        self.window = glfw.create_window(width, height, "npga-view", None, None)
+        self.window = None
+        for minor in (3, 1):  # 4.3 core for the compute path, else 4.1 core (macOS) for the 4.1 path (#18)
+            glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 4)
+            glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, minor)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # pyGLFW warns about the refused 4.3 request
+                self.window = glfw.create_window(width, height, "npga-view", None, None)
+            if self.window:
+                break
         if not self.window:
             glfw.terminate()
-            raise RuntimeError("could not open an OpenGL 4.3 window")
+            raise RuntimeError("could not open an OpenGL 4.3 or 4.1 core window")
         glfw.make_context_current(self.window)
         glfw.swap_interval(1 if vsync else 0)
         glfw.set_drop_callback(self.window, self._on_drop)  # before imgui installs (and chains) its callbacks
@@ -69,7 +78,7 @@ class ViewerApp:
         imgui.backends.glfw_init_for_opengl(ptr, True)
         imgui.backends.opengl3_init("#version 330")
         self.ctx = window_context()
-        self.renderer = SplatRenderer(self.ctx, 64, 64)
+        self.renderer = create_renderer(self.ctx, 64, 64)  # the 4.3 path, or the 4.1 one (macOS)
         # frame-budgeted, adaptive-resolution drawing; frame_budget_ms=None draws every change at once in full
         self.draws = DrawScheduler(self.renderer, budget_ms=frame_budget_ms or 25.0,
                                    enabled=frame_budget_ms is not None)
@@ -78,7 +87,7 @@ class ViewerApp:
         # at once in full, a blank view until the first pose, exact poses only in playback
         self.legacy = frame_budget_ms is None
         self.state = ViewerState()
-        self.info = AppInfo()
+        self.info = AppInfo(renderer_path=self.renderer.path)
         self.threads = threads
         self.device = device  # where the worker runs the dynamics ("cpu", "cuda", "mps", "auto")
         self.remember_recent = remember_recent
