@@ -140,3 +140,28 @@ def create_headless_context(backend: str = "auto") -> moderngl.Context:
 def window_context() -> moderngl.Context:
     """Wrap the GL context current on this thread (e.g. a glfw window's) for the renderer."""
     return _check_version(moderngl.create_context(require=REQUIRED_GL), "the window context")
+
+
+def release_current_egl() -> None:
+    """Make no EGL context current on this thread (a no-op without libEGL).
+
+    A headless EGL context left current (moderngl does not un-bind it on release) makes the X server refuse
+    the GLX context of a window opened later in the same process and thread (BadAccess on X_GLXMakeCurrent,
+    which aborts the process). The window calls this before making its own context current; headless
+    renderers make theirs current again before every use.
+    """
+    import ctypes.util
+
+    name = ctypes.util.find_library("EGL")
+    if name is None:
+        return
+    try:
+        egl = ctypes.CDLL(name)
+    except OSError:
+        return
+    egl.eglGetCurrentDisplay.restype = ctypes.c_void_p
+    egl.eglMakeCurrent.argtypes = [ctypes.c_void_p] * 4
+    egl.eglMakeCurrent.restype = ctypes.c_uint
+    display = egl.eglGetCurrentDisplay()
+    if display:
+        egl.eglMakeCurrent(display, None, None, None)
