@@ -524,8 +524,9 @@ class ViewerApp:
         self.ctx.viewport = (0, 0, fw, fh)
         self.ctx.clear(0.08, 0.08, 0.09, 1.0)
         self._draw_splats()
-        for panel in panels.OVERLAYS:  # after drawing, so that they report this frame's image
-            panel.draw(self.state, self.info)
+        if self.state.show_stats:
+            for panel in panels.OVERLAYS:  # after drawing, so that they report this frame's image
+                panel.draw(self.state, self.info)
         self.recorder.frame()
         imgui.render()
         imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())

@@ -72,6 +72,7 @@ class ViewerState:
     camera: OrbitCamera = field(default_factory=OrbitCamera)
     mode: str = "rgb"
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
+    show_stats: bool = True  # the statistics overlay over the splat view
     use_cnn: bool = True  # show the CNN-refined image (avatars with a CNN), else the raw splats
     latent_view: str = "off"  # "off" | "pca" (PCA of h as RGB) | "channel" (h[latent_channel]): the latent image
     latent_channel: int = 0

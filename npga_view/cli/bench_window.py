@@ -101,6 +101,7 @@ def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, sec
     w = _Watcher(app)
     out: dict = {"avatar": Path(avatar).name if avatar != "demo" else "demo", "budget": budget}
     try:
+        app.state.show_stats = False  # the overlay's figures change every frame: only the splats are watched
         app.open_avatar(avatar)
         out["gaussians"] = len(app.avatar)
         w.until(lambda: int(app.read_window(viewport_only=True).max()) > 0, 120)
@@ -152,6 +153,8 @@ def _playback(app, w: _Watcher, seconds: float, baked: bool) -> dict:
     tl = app.state.timeline
     tl.playing, tl.time_s = True, 0.0
     app.state.follow_sequence = True
+    for _ in range(3):  # frames asked for before the start are not counted
+        w.step()
     app.playback.reset_stats()
     images, frames0, t0 = 0, app.frames, time.perf_counter()
     while time.perf_counter() - t0 < seconds:

@@ -43,6 +43,7 @@ def draw(state: ViewerState, info: AppInfo) -> None:
     remember(info, "mode")
     _, bg = imgui.color_edit3("Background", list(state.background))
     state.background = (float(bg[0]), float(bg[1]), float(bg[2]))
+    _, state.show_stats = imgui.checkbox("Statistics overlay", state.show_stats)
     _refinement(state, info)
     if imgui.button("Screenshot"):
         state.actions.append(("screenshot", None))
