@@ -133,12 +133,12 @@ class _Renderer:
 
     def __init__(self, means: np.ndarray):
         from npga_core.camera.cameras import frame_points
+        from npga_view.rendering.factory import create_renderer
         from npga_view.rendering.gl import create_headless_context
-        from npga_view.rendering.renderer import SplatRenderer
 
         self.ctx = create_headless_context()
         self.camera = frame_points(np.asarray(means))
-        self.r = SplatRenderer(self.ctx, self.camera.width, self.camera.height)
+        self.r = create_renderer(self.ctx, self.camera.width, self.camera.height)
 
     def image(self, posed) -> np.ndarray:
         self.r.set_gaussians(posed)

@@ -75,4 +75,7 @@ def run(args: argparse.Namespace) -> int:
     avatar = load_avatar(args.path)
     dt = time.perf_counter() - t0
     print(summary(avatar, avatar.source or args.path, dt))
+    from npga_view.rendering.factory import headless_path_line
+
+    print(headless_path_line())
     return 0

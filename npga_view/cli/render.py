@@ -82,6 +82,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-cnn", action="store_true", help="skip the avatar's screen-space CNN refinement")
     p.add_argument("--timeline", type=Path, help="keyframe timeline JSON (expression and camera keys) to render as "
                    "a video (.mp4)")
+    p.add_argument("--verbose", action="store_true", help="print which renderer path and OpenGL version run")
     p.add_argument("--fps", type=float, default=25.0, help="frame rate of a --timeline video (default 25)")
 
 
@@ -438,8 +439,8 @@ def _progress(done: int, total: int, started: float) -> None:
 def _render(args) -> int:
     from npga_core.files.loading import load_avatar
     from npga_core.posing.headpose import posed_camera
+    from npga_view.rendering.factory import create_renderer, describe
     from npga_view.rendering.gl import GLUnavailableError, create_headless_context
-    from npga_view.rendering.renderer import SplatRenderer
 
     out: Path = args.out
     suffix = out.suffix.lower()
@@ -464,9 +465,11 @@ def _render(args) -> int:
         codes, cameras, fps = _timeline(args, avatar, camera)
     try:
         ctx = create_headless_context()
+        renderer = create_renderer(ctx, camera.width, camera.height)
     except GLUnavailableError as exc:
         raise RenderError(str(exc)) from None
-    renderer = SplatRenderer(ctx, camera.width, camera.height)
+    if getattr(args, "verbose", False):
+        print(f"renderer: {describe(renderer)}", file=sys.stderr)
     frames = _Frames(avatar, renderer, camera if cameras is None else cameras[0], args, background)
     if suffix != ".mp4":
         image, picture = frames.render(None if codes is None else codes[0])

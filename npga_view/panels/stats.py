@@ -29,6 +29,7 @@ def _body(info: AppInfo) -> None:
     total = len(a) if a is not None else 0
     imgui.text(f"Gaussians: {total:,} total, {info.gaussians_drawn:,} in front of the camera")
     imgui.text(f"UI: {info.fps:5.1f} fps" + ("   posing..." if info.posing else ""))
+    imgui.text(f"renderer: {info.renderer_path}")
     amber = imgui.ImVec4(1.0, 0.8, 0.3, 1.0)
     if info.canonical:
         imgui.text_colored(amber, "canonical cloud (the first pose is on its way)")

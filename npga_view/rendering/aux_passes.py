@@ -66,9 +66,8 @@ class AuxiliaryPasses:
                 prog["u_viewport"].value = (float(w), float(h))
                 prog["u_latent_dim"].value = self._latent_dim
                 prog["u_first_channel"].value = first
-                self._buffers["splats"].bind_to_storage_buffer(2)
-                self._buffers["order"].bind_to_storage_buffer(3)
-                self._buffers["latent"].bind_to_storage_buffer(4)
+                self._bind_splats(prog)
+                self._bind_latent(prog)
                 vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._visible)
             for k in range(targets):
                 lo = first + 3 * k
@@ -116,8 +115,7 @@ class AuxiliaryPasses:
         self._set_style(prog, camera)
         prog["u_threshold"].value = float(threshold)
         prog["u_first"].value = 0
-        self._buffers["splats"].bind_to_storage_buffer(2)
-        self._buffers["order"].bind_to_storage_buffer(3)
+        self._bind_splats(prog)
         fbo.scissor = scissor
         try:
             self._id_vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._visible)

@@ -1,6 +1,7 @@
 """OpenGL context creation: headless (EGL, or OSMesa through ctypes) and the window's current context.
 
-The renderer needs OpenGL 4.3 (compute shaders, shader storage buffers).
+The renderer needs OpenGL 4.1 core: 4.3 and later run `SplatRenderer` (compute shaders, shader storage buffers),
+4.1 and 4.2 (macOS) run `SplatRenderer41` (`npga_view.rendering.factory.create_renderer` chooses).
 """
 
 from __future__ import annotations
@@ -10,7 +11,7 @@ import ctypes.util
 
 import moderngl
 
-REQUIRED_GL = 430
+REQUIRED_GL = 410
 
 # OSMesa constants (GL/osmesa.h)
 _OSMESA_RGBA = 0x1908
@@ -26,7 +27,7 @@ _GL_UNSIGNED_BYTE = 0x1401
 
 
 class GLUnavailableError(RuntimeError):
-    """No OpenGL 4.3 context could be created; the message says what was tried and why it failed."""
+    """No OpenGL 4.1 context could be created; the message says what was tried and why it failed."""
 
 
 class _OSMesaLoader:
@@ -112,12 +113,13 @@ def _check_version(ctx: moderngl.Context, backend: str) -> moderngl.Context:
     if ctx.version_code < REQUIRED_GL:
         version = ctx.version_code
         ctx.release()
-        raise GLUnavailableError(f"{backend} gives OpenGL {version // 100}.{version % 100 // 10}, need 4.3")
+        raise GLUnavailableError(f"{backend} gives OpenGL {version // 100}.{version % 100 // 10}, need 4.1 core")
     return ctx
 
 
 def create_headless_context(backend: str = "auto") -> moderngl.Context:
-    """A headless OpenGL >= 4.3 context: EGL first, then OSMesa; `backend` may force "egl" or "osmesa".
+    """A headless OpenGL >= 4.1 core context (the highest version the driver offers): EGL first, then OSMesa;
+    `backend` may force "egl" or "osmesa".
 
     Raises GLUnavailableError naming each backend tried and why it failed.
     """
@@ -134,12 +136,18 @@ def create_headless_context(backend: str = "auto") -> moderngl.Context:
             return _check_version(create_osmesa_context(), "OSMesa")
         except Exception as exc:  # noqa: BLE001
             errors.append(f"OSMesa: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}")
-    raise GLUnavailableError("no headless OpenGL 4.3 context (" + "; ".join(errors) + ")")
+    raise GLUnavailableError("no headless OpenGL 4.1 context (" + "; ".join(errors) + ")")
 
 
 def window_context() -> moderngl.Context:
     """Wrap the GL context current on this thread (e.g. a glfw window's) for the renderer."""
     return _check_version(moderngl.create_context(require=REQUIRED_GL), "the window context")
+
+
+def version_text(ctx: moderngl.Context) -> str:
+    """The context's OpenGL version and renderer, e.g. "OpenGL 4.5 (Core Profile) Mesa 22.3.6, llvmpipe (...)"."""
+    info = ctx.info
+    return f"OpenGL {info.get('GL_VERSION', ctx.version_code)}, {info.get('GL_RENDERER', '?')}"
 
 
 def release_current_egl() -> None:

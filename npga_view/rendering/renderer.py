@@ -124,19 +124,21 @@ class SplatRenderer(AuxiliaryPasses):
     """
 
     _load_shader = staticmethod(load_shader)
+    #: which renderer path this is (shown by the stats overlay, `info` and `render --verbose`)
+    path = "OpenGL 4.3 (compute pre-pass, storage buffers)"
 
     def __init__(self, ctx: moderngl.Context, width: int, height: int, exact_sort: bool = True) -> None:
         self.ctx = ctx
         self.exact_sort = exact_sort
         self._activate()
         self.max_targets = min(8, int(ctx.info["GL_MAX_DRAW_BUFFERS"]))
-        self.max_ssbo_bytes = int(ctx.info["GL_MAX_SHADER_STORAGE_BLOCK_SIZE"])
-        self._preprocess = ctx.compute_shader(load_shader("splat_preprocess.comp"))
-        self._splat_prog = ctx.program(vertex_shader=load_shader("splat.vert"),
-                                       fragment_shader=load_shader("splat.frag"))
+        self.max_ssbo_bytes = int(ctx.info.get("GL_MAX_SHADER_STORAGE_BLOCK_SIZE") or 0)
+        self._preprocess = self._build_preprocess()
+        self._splat_prog = ctx.program(vertex_shader=self._load_shader("splat.vert"),
+                                       fragment_shader=self._load_shader("splat.frag"))
         self._splat_vao = ctx.vertex_array(self._splat_prog, [])
-        self._points_prog = ctx.program(vertex_shader=load_shader("splat_points.vert"),
-                                        fragment_shader=load_shader("splat.frag"))
+        self._points_prog = ctx.program(vertex_shader=self._load_shader("splat_points.vert"),
+                                        fragment_shader=self._load_shader("splat.frag"))
         self._points_vao = ctx.vertex_array(self._points_prog, [])
         #: largest GL point size; splats of up to this size may be drawn as points (`use_points`)
         self.max_point = float(ctx.info["GL_POINT_SIZE_RANGE"][1])
@@ -146,8 +148,8 @@ class SplatRenderer(AuxiliaryPasses):
         self._job_camera: Camera | None = None
         self._job_framebuffer: moderngl.Framebuffer | None = None
         self._ms_per_splat = 0.0  # measured cost of the colour pass per sorted position (0: not yet)
-        self._id_prog = ctx.program(vertex_shader=load_shader("splat.vert"),
-                                    fragment_shader=load_shader("splat_id.frag"))
+        self._id_prog = ctx.program(vertex_shader=self._load_shader("splat.vert"),
+                                    fragment_shader=self._load_shader("splat_id.frag"))
         self._id_vao = ctx.vertex_array(self._id_prog, [])
         self._id_target: tuple[moderngl.Texture, moderngl.Framebuffer] | None = None
         self._lines: LinePass | None = None
@@ -156,8 +158,8 @@ class SplatRenderer(AuxiliaryPasses):
         self.point_px = 2.0
         self.style_min_opacity = 0.05
         self._latent_progs: dict[int, tuple[moderngl.Program, moderngl.VertexArray]] = {}
-        self._composite_prog = ctx.program(vertex_shader=load_shader("fullscreen.vert"),
-                                           fragment_shader=load_shader("composite.frag"))
+        self._composite_prog = ctx.program(vertex_shader=self._load_shader("fullscreen.vert"),
+                                           fragment_shader=self._load_shader("composite.frag"))
         self._composite_vao = ctx.vertex_array(self._composite_prog, [])
         self._count = 0
         self._means: np.ndarray | None = None
@@ -178,6 +180,19 @@ class SplatRenderer(AuxiliaryPasses):
         self._resize(width, height)
 
     # --- resources -----------------------------------------------------------------------------
+    def _build_preprocess(self) -> moderngl.ComputeShader | None:
+        """The pre-pass program (None in a subclass that runs the pre-pass elsewhere)."""
+        return self.ctx.compute_shader(self._load_shader("splat_preprocess.comp"))
+
+    def _bind_splats(self, prog: moderngl.Program) -> None:
+        """Make the projected splats and the sorted order readable by the draw program `prog`."""
+        self._buffers["splats"].bind_to_storage_buffer(2)
+        self._buffers["order"].bind_to_storage_buffer(3)
+
+    def _bind_latent(self, prog: moderngl.Program) -> None:
+        """Make the latent features readable by the latent program `prog`."""
+        self._buffers["latent"].bind_to_storage_buffer(4)
+
     def _activate(self) -> None:
         """Make this renderer's context current: with several contexts in one process (a window and a
         headless one, or tests) moderngl does not switch by itself, and GL calls would reach the wrong one."""
@@ -264,7 +279,8 @@ class SplatRenderer(AuxiliaryPasses):
             self._lines = None
         for obj in (self._splat_vao, self._splat_prog, self._points_vao, self._points_prog, self._id_vao,
                     self._id_prog, self._composite_vao, self._composite_prog, self._preprocess):
-            obj.release()
+            if obj is not None:
+                obj.release()
 
     # --- data ----------------------------------------------------------------------------------
     @property
@@ -462,13 +478,12 @@ class SplatRenderer(AuxiliaryPasses):
 
     def _draw_slice(self, job: DrawJob, camera: Camera, fbo: moderngl.Framebuffer, first: int, count: int) -> None:
         """Blend sorted positions [first, first + count) into `fbo`."""
-        self._buffers["splats"].bind_to_storage_buffer(2)
-        self._buffers["order"].bind_to_storage_buffer(3)
         if job.points:
             guard = math.ceil(self.max_point / 2)
             self._begin_pass(fbo, (-guard, -guard, job.width + 2 * guard, job.height + 2 * guard))
             self.ctx.enable(moderngl.PROGRAM_POINT_SIZE)
             prog = self._points_prog
+            self._bind_splats(prog)
             prog["u_viewport"].value = (float(job.width), float(job.height))
             prog["u_guard"].value = float(guard)
             prog["u_first"].value = first
@@ -478,6 +493,7 @@ class SplatRenderer(AuxiliaryPasses):
         else:
             self._begin_pass(fbo, (0, 0, job.width, job.height))
             prog = self._splat_prog
+            self._bind_splats(prog)
             self._set_style(prog, camera)
             prog["u_first"].value = first
             prog["u_mode"].value = 1 if job.mode == "depth" else 0
