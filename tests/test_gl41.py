@@ -128,6 +128,23 @@ def test_sliced_drawing_and_points_path(paths):
     np.testing.assert_array_equal(r41._read(r41._fbo, 0, w, h)[..., :3], points)
 
 
+def test_the_callers_arrays_may_be_reused_after_upload(paths):
+    """The CPU pre-pass reads the cloud at every camera move: it keeps its own copies (a pose worker's shared
+    memory slot is overwritten by the next pose)."""
+    r41, _ = paths
+    g = random_cloud(800, seed=21, sh_degree=3)
+    cams = [off_centre_camera((0.0, 0.0, 3.0)), off_centre_camera((2.0, 0.5, 2.0))]
+    r41.set_gaussians(g)
+    first = r41.render(cams[0])
+    for field in ("means", "quats", "scales", "opacities", "sh"):
+        getattr(g, field)[:] = 0.5
+    moved = r41.render(cams[1])
+    fresh = random_cloud(800, seed=21, sh_degree=3)
+    r41.set_gaussians(fresh)
+    np.testing.assert_array_equal(r41.render(cams[1]), moved)
+    np.testing.assert_array_equal(r41.render(cams[0]), first)
+
+
 def test_choose_path(ctx, monkeypatch):
     from npga_view.rendering.factory import PATH_ENV, choose_path, create_renderer
     from npga_view.rendering.gl import GLUnavailableError

@@ -1,5 +1,8 @@
 """`SplatRenderer`: rasterises posed 3D Gaussians with OpenGL 4.3, matching the 3DGS reference rasterizer.
 
+(OpenGL 4.1/4.2, e.g. macOS: `renderer41.SplatRenderer41`, the same renderer with the pre-pass on the CPU and
+the splats in textures; `factory.create_renderer` picks the path.)
+
 Pipeline per frame (see shaders/):
 
 1. sort (CPU, `sorting.py`): camera-space depth of every Gaussian centre, culled at the near plane, O(N)

@@ -29,7 +29,7 @@ import numpy as np
 
 from npga_core.camera.cameras import Camera
 from npga_core.model.gaussians import SH_C0, PosedGaussians, sh_degree_from_count
-from npga_core.model.sh import sh_basis
+from npga_core.model.sh import SH_C1, SH_C2, SH_C3
 from npga_view.rendering.lines import pack_rgba8
 from npga_view.rendering.renderer import NEAR, SplatRenderer, _mat4_uniform, camera_key, load_shader
 from npga_view.rendering.sorting import sort_back_to_front, view_depths
@@ -45,96 +45,147 @@ def load_shader41(name: str, defines: dict[str, object] | None = None) -> str:
 
 
 def covariances(quats: np.ndarray, scales: np.ndarray) -> np.ndarray:
-    """3D covariances R S S^T R^T (N, 3, 3) float32 from (w, x, y, z) quaternions (normalised here, as 3DGS
-    does) and scales, as the pre-pass shader builds them."""
+    """The 3D covariances R S S^T R^T as (6, N) float32 rows xx, xy, xz, yy, yz, zz, from (w, x, y, z)
+    quaternions (normalised here, as 3DGS does) and scales, as the pre-pass shader builds them."""
     q = np.asarray(quats, np.float32).reshape(-1, 4)
+    s = np.asarray(scales, np.float32).reshape(-1, 3)
     with np.errstate(invalid="ignore", divide="ignore"):
-        q = q / np.linalg.norm(q, axis=1, keepdims=True)
-    w, x, y, z = q[:, 0], q[:, 1], q[:, 2], q[:, 3]
-    rot = np.stack([1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y),
-                    2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x),
-                    2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)], axis=1).reshape(-1, 3, 3)
-    m = rot * np.asarray(scales, np.float32).reshape(-1, 1, 3)
-    return np.einsum("nij,nkj->nik", m, m)
+        q = q / np.sqrt(np.einsum("ni,ni->n", q, q))[:, None]
+    w, x, y, z = (np.ascontiguousarray(q[:, i]) for i in range(4))
+    r = ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
+         (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
+         (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))
+    s2 = [s[:, i] * s[:, i] for i in range(3)]
+    out = np.empty((6, len(q)), np.float32)
+    for row, (i, j) in enumerate(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
+        out[row] = r[i][0] * r[j][0] * s2[0] + r[i][1] * r[j][1] * s2[1] + r[i][2] * r[j][2] * s2[2]
+    return out
 
 
-def preprocess(means: np.ndarray, opacities: np.ndarray, cov3d: np.ndarray, sh: np.ndarray, order: np.ndarray,
-               camera: Camera, flip_y: bool, max_point: float) -> tuple[np.ndarray, np.ndarray, int]:
-    """The pre-pass of `shaders/splat_preprocess.comp` on the CPU for the sorted indices `order`.
+class Columns:
+    """A posed cloud as the CPU pre-pass reads it: one contiguous float32 row per quantity (fast elementwise
+    numpy over chunks): means (3, N), covariances (6, N), opacities (N,); SH (N, 3K)."""
+
+    def __init__(self, posed: PosedGaussians) -> None:
+        n = len(posed)
+        self.means = np.ascontiguousarray(np.asarray(posed.means, np.float32).reshape(n, 3).T)
+        self.cov = covariances(posed.quats, posed.scales)
+        self.opacities = np.array(posed.opacities, dtype=np.float32, copy=True).reshape(n)
+        sh = np.asarray(posed.sh, np.float32)
+        self.degree = sh_degree_from_count(sh.shape[1])
+        # a copy (the caller may reuse its arrays, e.g. a shared-memory slot); coefficient k of channel c at 3k + c
+        self.sh = np.array(sh, dtype=np.float32, copy=True).reshape(n, 3 * sh.shape[1])
+        self.n = n
+
+
+def _sh_colour(cols: Columns, sl: slice, dirs: tuple[np.ndarray, np.ndarray, np.ndarray]) -> list[np.ndarray]:
+    """max(sum_k sh_k Y_k(d) + 0.5, 0) per channel: the basis of `npga_core.model.sh.sh_basis` in float32."""
+    x, y, z = dirs
+    basis = [None]
+    if cols.degree >= 1:
+        basis += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
+    if cols.degree >= 2:
+        xx, yy, zz = x * x, y * y, z * z
+        basis += [SH_C2[0] * x * y, SH_C2[1] * y * z, SH_C2[2] * (2 * zz - xx - yy), SH_C2[3] * x * z,
+                  SH_C2[4] * (xx - yy)]
+    if cols.degree >= 3:
+        basis += [SH_C3[0] * y * (3 * xx - yy), SH_C3[1] * x * y * z, SH_C3[2] * y * (4 * zz - xx - yy),
+                  SH_C3[3] * z * (2 * zz - 3 * xx - 3 * yy), SH_C3[4] * x * (4 * zz - xx - yy),
+                  SH_C3[5] * z * (xx - yy), SH_C3[6] * x * (xx - 3 * yy)]
+    out = []
+    for ch in range(3):
+        colour = np.float32(SH_C0) * cols.sh[sl, ch]
+        for k in range(1, len(basis)):
+            colour += basis[k].astype(np.float32, copy=False) * cols.sh[sl, 3 * k + ch]
+        out.append(np.maximum(colour + np.float32(0.5), np.float32(0.0)))
+    return out
+
+
+def _preprocess_chunk(cols: Columns, sl: slice, camera: Camera, proj: np.ndarray, out: np.ndarray,
+                      keep: np.ndarray) -> None:
+    """The pre-pass for Gaussians `sl` (stored order) into out[sl]'s rows and keep[sl]."""
+    f32 = np.float32
+    v = np.asarray(camera.world_to_camera, np.float32)
+    x, y, z = cols.means[0, sl], cols.means[1, sl], cols.means[2, sl]
+    op = cols.opacities[sl]
+    tx = v[0, 0] * x + v[0, 1] * y + v[0, 2] * z + v[0, 3]
+    ty = v[1, 0] * x + v[1, 1] * y + v[1, 2] * z + v[1, 3]
+    tz = v[2, 0] * x + v[2, 1] * y + v[2, 2] * z + v[2, 3]
+    k = (tz > f32(NEAR)) & (op >= f32(MIN_ALPHA))
+    inv = f32(1.0) / tz
+    lim_x, lim_y = f32(1.3 * camera.tan_half_fov_x), f32(1.3 * camera.tan_half_fov_y)
+    cx = np.clip(tx * inv, -lim_x, lim_x) * tz
+    cy = np.clip(ty * inv, -lim_y, lim_y) * tz
+    fx, fy = f32(camera.fx), f32(camera.fy)
+    # J W with J = ((fx/z, 0, -fx cx/z^2), (0, fy/z, -fy cy/z^2)): rows u and w
+    j00, j02 = fx * inv, -fx * cx * inv * inv
+    j11, j12 = fy * inv, -fy * cy * inv * inv
+    u = [j00 * v[0, i] + j02 * v[2, i] for i in range(3)]
+    w = [j11 * v[1, i] + j12 * v[2, i] for i in range(3)]
+    cxx, cxy, cxz, cyy, cyz, czz = (cols.cov[i, sl] for i in range(6))
+    cu = (cxx * u[0] + cxy * u[1] + cxz * u[2], cxy * u[0] + cyy * u[1] + cyz * u[2],
+          cxz * u[0] + cyz * u[1] + czz * u[2])
+    cw = (cxx * w[0] + cxy * w[1] + cxz * w[2], cxy * w[0] + cyy * w[1] + cyz * w[2],
+          cxz * w[0] + cyz * w[1] + czz * w[2])
+    a = u[0] * cu[0] + u[1] * cu[1] + u[2] * cu[2] + f32(0.3)
+    b = w[0] * cu[0] + w[1] * cu[1] + w[2] * cu[2]
+    c = w[0] * cw[0] + w[1] * cw[1] + w[2] * cw[2] + f32(0.3)
+    det = a * c - b * b
+    k &= det > 0.0
+    # window coordinates of the centre through the GL projection; b flips with it
+    clip_w = proj[3, 0] * tx + proj[3, 1] * ty + proj[3, 2] * tz + proj[3, 3]
+    px = ((proj[0, 0] * tx + proj[0, 1] * ty + proj[0, 2] * tz + proj[0, 3]) / clip_w * f32(0.5) + f32(0.5)) \
+        * f32(camera.width)
+    py = ((proj[1, 0] * tx + proj[1, 1] * ty + proj[1, 2] * tz + proj[1, 3]) / clip_w * f32(0.5) + f32(0.5)) \
+        * f32(camera.height)
+    b = b * np.sign(proj[1, 1])
+    r = f32(1.002) * np.sqrt(f32(2.0) * np.log(f32(255.0) * op))
+    hx, hy = r * np.sqrt(a), r * np.sqrt(c)
+    k &= (px + hx >= 0.0) & (py + hy >= 0.0) & (px - hx <= f32(camera.width)) & (py - hy <= f32(camera.height))
+    keep[sl] = k
+    # quad: eigenvectors of the covariance scaled by sqrt(eigenvalue) r
+    mid = f32(0.5) * (a + c)
+    disc = np.sqrt(np.maximum(f32(0.25) * (a - c) * (a - c) + b * b, f32(0.0)))
+    l1 = mid + disc
+    l2 = det / l1
+    first = a >= c
+    ex, ey = np.where(first, l1 - c, b), np.where(first, b, l1 - a)
+    length = np.sqrt(ex * ex + ey * ey)
+    ok = length > 0.0
+    ex, ey = np.where(ok, ex / length, f32(1.0)), np.where(ok, ey / length, f32(0.0))
+    s1, s2 = np.sqrt(l1) * r, np.sqrt(l2) * r
+    o = out[sl]
+    o[:, 0], o[:, 1], o[:, 2], o[:, 3] = px, py, tz, op
+    o[:, 4], o[:, 5], o[:, 6], o[:, 7] = ex * s1, ey * s1, -ey * s2, ex * s2
+    o[:, 8], o[:, 9], o[:, 10] = c / det, -b / det, a / det
+    o[:, 11] = np.arange(sl.start, sl.stop, dtype=np.float32)
+    centre = np.asarray(camera.camera_center, np.float32)
+    dx, dy, dz = x - centre[0], y - centre[1], z - centre[2]
+    norm = np.sqrt(dx * dx + dy * dy + dz * dz)
+    o[:, 12], o[:, 13], o[:, 14] = _sh_colour(cols, sl, (dx / norm, dy / norm, dz / norm))
+    o[:, 15] = 0.0
+
+
+def preprocess(cols: Columns, order: np.ndarray, camera: Camera, flip_y: bool, max_point: float,
+               chunk: int = 16384) -> tuple[np.ndarray, np.ndarray, int]:
+    """The pre-pass of `shaders/splat_preprocess.comp` on the CPU, drawn in the sorted order `order`.
 
     Returns (splats (K, 16) float32 in draw order: centre (x, y, depth, opacity), half-axes, conic (a, b, c,
     index), colour (r, g, b, 0); the indices (K,) kept; the number of kept splats whose bounding square exceeds
-    `max_point` pixels).
+    `max_point` pixels). Computed in chunks over all Gaussians in stored order (contiguous reads that stay in
+    cache; a head is mostly in view), then the kept rows are taken in the sorted order.
     """
-    idx = np.asarray(order, np.int64)
-    view = np.asarray(camera.world_to_camera, np.float32)
-    w3 = view[:3, :3]
-    t = means[idx] @ w3.T + view[:3, 3]
-    opacity = opacities[idx]
-    tz = t[:, 2]
+    proj = camera.opengl_projection(NEAR, 1000.0, flip_y).astype(np.float32)
+    out = np.empty((cols.n, 16), np.float32)
+    keep = np.zeros(cols.n, bool)
     with np.errstate(invalid="ignore", divide="ignore", over="ignore"):
-        keep = (tz > NEAR) & (opacity >= MIN_ALPHA)
-        inv_z = (1.0 / tz).astype(np.float32)
-        lim_x, lim_y = 1.3 * camera.tan_half_fov_x, 1.3 * camera.tan_half_fov_y
-        tx = np.clip(t[:, 0] * inv_z, -lim_x, lim_x) * tz
-        ty = np.clip(t[:, 1] * inv_z, -lim_y, lim_y) * tz
-        fx, fy = np.float32(camera.fx), np.float32(camera.fy)
-        # rows of J W: J = ((fx/z, 0, -fx tx/z^2), (0, fy/z, -fy ty/z^2))
-        row0 = (fx * inv_z)[:, None] * w3[0] - (fx * tx * inv_z * inv_z)[:, None] * w3[2]
-        row1 = (fy * inv_z)[:, None] * w3[1] - (fy * ty * inv_z * inv_z)[:, None] * w3[2]
-        c3 = cov3d[idx]
-        c_row0 = np.einsum("nij,nj->ni", c3, row0)
-        a = np.einsum("ni,ni->n", row0, c_row0) + np.float32(0.3)
-        b = np.einsum("ni,ni->n", row1, c_row0)
-        c = np.einsum("ni,ni->n", row1, np.einsum("nij,nj->ni", c3, row1)) + np.float32(0.3)
-        det = a * c - b * b
-        keep &= det > 0.0
-        proj = camera.opengl_projection(NEAR, 1000.0, flip_y).astype(np.float32)
-        clip = t @ proj[:, :3].T + proj[:, 3]
-        size = np.array([camera.width, camera.height], np.float32)
-        centre = (clip[:, :2] / clip[:, 3:4] * 0.5 + 0.5) * size
-        b = b * np.sign(proj[1, 1])
-        r = 1.002 * np.sqrt(2.0 * np.log(255.0 * opacity))
-        half_box = r[:, None] * np.sqrt(np.stack([a, c], axis=1))
-        keep &= ~(np.any(centre + half_box < 0.0, axis=1) | np.any(centre - half_box > size, axis=1))
-    k = np.flatnonzero(keep)
-    a, b, c, det, r, centre = a[k], b[k], c[k], det[k], r[k], centre[k]
-    mid = 0.5 * (a + c)
-    disc = np.sqrt(np.maximum(0.25 * (a - c) ** 2 + b * b, 0.0))
-    l1 = mid + disc
-    l2 = det / l1
-    e1 = np.where((a >= c)[:, None], np.stack([l1 - c, b], axis=1), np.stack([b, l1 - a], axis=1))
-    length = np.linalg.norm(e1, axis=1, keepdims=True)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        e1 = np.where(length > 0.0, e1 / length, np.array([1.0, 0.0], np.float32))
-    ax1 = e1 * (np.sqrt(l1) * r)[:, None]
-    ax2 = np.stack([-e1[:, 1], e1[:, 0]], axis=1) * (np.sqrt(l2) * r)[:, None]
-    kept = idx[k]
-    out = np.zeros((len(k), 16), np.float32)
-    out[:, 0:2] = centre
-    out[:, 2] = tz[k]
-    out[:, 3] = opacity[k]
-    out[:, 4:6] = ax1
-    out[:, 6:8] = ax2
-    out[:, 8] = c / det
-    out[:, 9] = -b / det
-    out[:, 10] = a / det
-    out[:, 11] = kept
-    if len(k):
-        coeffs = sh.shape[1]
-        degree = sh_degree_from_count(coeffs)
-        means_k = means[kept]
-        if degree:
-            dirs = means_k - np.asarray(camera.camera_center, np.float32)
-            dirs = dirs / np.linalg.norm(dirs, axis=1, keepdims=True)
-            basis = sh_basis(dirs, degree).astype(np.float32)
-            colour = np.einsum("nk,nkc->nc", basis, sh[kept])
-        else:
-            colour = sh[kept, 0] * np.float32(SH_C0)
-        out[:, 12:15] = np.maximum(colour + 0.5, 0.0)
-    half = np.abs(out[:, 4:6]) + np.abs(out[:, 6:8])
-    oversize = int(np.count_nonzero(2.0 * half.max(axis=1, initial=0.0) + 1.0 > max_point)) if len(k) else 0
-    return out, kept, oversize
+        for start in range(0, cols.n, chunk):
+            _preprocess_chunk(cols, slice(start, min(cols.n, start + chunk)), camera, proj, out, keep)
+    kept = np.asarray(order, np.int64)
+    kept = kept[keep[kept]]
+    splats = out[kept]
+    half = np.maximum(np.abs(splats[:, 4]) + np.abs(splats[:, 6]), np.abs(splats[:, 5]) + np.abs(splats[:, 7]))
+    return splats, kept, int(np.count_nonzero(2.0 * half + 1.0 > max_point))
 
 
 class LinePass41:
@@ -214,9 +265,7 @@ class SplatRenderer41(SplatRenderer):
 
     def __init__(self, ctx: moderngl.Context, width: int, height: int, exact_sort: bool = True) -> None:
         self._textures: dict[str, moderngl.Texture] = {}
-        self._cov3d: np.ndarray | None = None
-        self._opacities: np.ndarray | None = None
-        self._sh: np.ndarray | None = None
+        self._columns: Columns | None = None
         self._kept = np.zeros(0, np.int64)
         super().__init__(ctx, width, height, exact_sort)
         self.max_texture = int(ctx.info.get("GL_MAX_TEXTURE_SIZE") or 16384)
@@ -254,14 +303,12 @@ class SplatRenderer41(SplatRenderer):
         t0 = time.perf_counter()
         n = len(posed)
         means = np.array(posed.means, dtype=np.float32, copy=True).reshape(n, 3)
-        sh = np.array(posed.sh, dtype=np.float32, copy=True)
+        sh = np.asarray(posed.sh, dtype=np.float32)
         if sh.ndim != 3 or sh.shape[0] != n or sh.shape[2] != 3:
             raise ValueError(f"sh must be (N, K, 3) with N={n}, got {sh.shape}")
         sh_degree_from_count(sh.shape[1])
         self._sh_coeffs = sh.shape[1]
-        self._cov3d = covariances(posed.quats, posed.scales)
-        self._opacities = np.array(posed.opacities, dtype=np.float32, copy=True).reshape(n)
-        self._sh = sh
+        self._columns = Columns(posed)
         self._texture("splats", 4 * n)
         if posed.latent is not None:
             latent = np.asarray(posed.latent, dtype=np.float32).reshape(n, -1)
@@ -293,8 +340,8 @@ class SplatRenderer41(SplatRenderer):
         z = view_depths(self._means, camera.world_to_camera)
         order = sort_back_to_front(z, NEAR, exact=self.exact_sort)
         t1 = time.perf_counter()
-        splats, self._kept, self._oversize = preprocess(self._means, self._opacities, self._cov3d, self._sh, order,
-                                                        camera, flip_y, self.max_point)
+        splats, self._kept, self._oversize = preprocess(self._columns, order, camera, flip_y,
+                                                        self.max_point)
         t2 = time.perf_counter()
         if len(splats):
             self._upload("splats", splats)
