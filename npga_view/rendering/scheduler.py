@@ -64,7 +64,10 @@ class DrawScheduler:
         self._job: _Image | None = None
         self._job_t0 = 0.0
         self._target: tuple | None = None
-        self._last_change = -math.inf
+        self._view: tuple | None = None  # camera and mode of the last frame
+        self._last_change = -math.inf  # when the camera or mode last changed
+        self._frame_end: float | None = None
+        self.ui_ms = 0.0  # the UI frame's own time (everything but splat drawing), smoothed
         self.last_image_ms = 0.0  # drawing time (pre-pass + slices) of the last finished image
         self.last_image_wall_ms = 0.0  # wall time from its start to its end (spans UI frames)
         self.images = 0  # finished images so far
@@ -113,12 +116,24 @@ class DrawScheduler:
               exact_content: bool = True, now: float | None = None) -> bool:
         """Advance drawing for this UI frame; True when a new finished image was swapped to the front."""
         frame_start = time.perf_counter()
+        if self._frame_end is not None:
+            gap = (frame_start - self._frame_end) * 1e3
+            self.ui_ms = gap if not self.ui_ms else 0.8 * self.ui_ms + 0.2 * gap
+        try:
+            return self._frame(camera, mode, content_version, interacting, exact_content, now, frame_start)
+        finally:
+            self._frame_end = time.perf_counter()
+
+    def _frame(self, camera: Camera, mode: str, content_version: int, interacting: bool, exact_content: bool,
+               now: float | None, frame_start: float) -> bool:
         now = frame_start if now is None else now
-        target = (camera_key(camera), mode, content_version)
-        if target != self._target:
-            self._target = target
-            if self._shown is not None:  # the first image of a view is not an interaction
+        key = camera_key(camera)
+        target = (key, mode, content_version)
+        self._target = target
+        if (key, mode) != self._view:  # a camera move is an interaction; a new pose alone is not
+            if self._view is not None and self._shown is not None:
                 self._last_change = now
+            self._view = (key, mode)
         live = interacting or (now - self._last_change) < self.settle_s
         r = self.renderer
         if not self.enabled:
@@ -142,7 +157,10 @@ class DrawScheduler:
                 self._start(camera, mode, _Image(target, want, exact_content, live=live or shown is None), now)
         if self._job is None:
             return False
-        return self._continue(self.budget_ms, frame_start)
+        # while nothing changes, the refinement may take as long as the rest of the UI frame (so that it gets
+        # at least half of the machine), never less than the budget
+        budget = self.budget_ms if live else max(self.budget_ms, min(self.ui_ms, 4 * self.budget_ms))
+        return self._continue(budget, frame_start)
 
     def _start(self, camera: Camera, mode: str, image: _Image, now: float) -> None:
         self.renderer.begin_draw(scaled_camera(camera, image.scale), mode)
