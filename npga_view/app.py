@@ -31,11 +31,13 @@ from npga_view.controllers.editing import EditController, highlight
 from npga_view.controllers.playback import Playback
 from npga_view.controllers.posing import PoseController
 from npga_view.controllers.recording import Recorder
+from npga_view.controllers.refining import RefineController
 from npga_view.imgui_glfw import glfw, imgui
 from npga_view.panels.files import AVATAR_EXT
 from npga_view.panels.info import AppInfo
 from npga_view.rendering.factory import create_renderer
 from npga_view.rendering.gl import release_current_egl, window_context
+from npga_view.rendering.refinement import Refiner
 from npga_view.rendering.renderer import NEAR
 from npga_view.rendering.scheduler import DrawScheduler
 from npga_view.state import MAX_SLIDERS, ViewerState
@@ -88,6 +90,10 @@ class ViewerApp:
         self.legacy = frame_budget_ms is None
         self.state = ViewerState()
         self.info = AppInfo(renderer_path=self.renderer.path)
+        # the screen-space CNN (on the dynamics' GPU when one is asked for) and latent views, on settled images
+        cnn_device = device if device.startswith("cuda") else "cpu"
+        self.refining = RefineController(Refiner(self.ctx, cnn_device), self.renderer, self.draws, self.state,
+                                         self.info)
         self.threads = threads
         self.device = device  # where the worker runs the dynamics ("cpu", "cuda", "mps", "auto")
         self.remember_recent = remember_recent
@@ -147,6 +153,7 @@ class ViewerApp:
         self._posed = None
         self.poses.reset()
         self.inspector = Inspector(avatar)
+        self.refining.set_avatar(avatar)
         self.state.inspect.picked = None
         self.poses.first_pose_shown = False
         if avatar.dynamics is not None and avatar.source:
@@ -216,6 +223,7 @@ class ViewerApp:
     def cloud_changed(self, worker_path: str | None) -> None:
         """The canonical cloud was edited: re-pose it (in the worker, from `worker_path`, if animatable)."""
         self.inspector = Inspector(self.avatar)
+        self.refining.set_avatar(self.avatar)
         if self.state.inspect.picked is not None and self.state.inspect.picked >= len(self.avatar):
             self.state.inspect.picked = None
         if worker_path is None:
@@ -477,6 +485,8 @@ class ViewerApp:
                                                     self._colouring, cam, self.renderer.drawn_mask(), NEAR)
             self.info.inspect.error = self.info.inspect.error or err
         x, y, w, h = self._viewport()
+        if self.refining.present(cam, self.ctx.screen, (x, y, w, h)):
+            return
         bg = self.state.background if self.state.mode == "rgb" else (0.0, 0.0, 0.0)
         self.renderer.present(self.ctx.screen, bg, flip_y=True, viewport=(x, y, w, h))
 
@@ -605,6 +615,7 @@ class ViewerApp:
             self.engine = None
         self.edits.close()
         if self.window is not None:
+            self.refining.release()
             imgui.backends.opengl3_shutdown()
             imgui.backends.glfw_shutdown()
             imgui.destroy_context()

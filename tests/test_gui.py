@@ -506,3 +506,34 @@ def test_sliced_window_image_equals_one_draw(app, avatar_path):
     app.step()
     app.step()
     np.testing.assert_array_equal(app.read_window(viewport_only=True)[below], sliced)
+
+
+# --- screen-space refinement in the window (#17) --------------------------------------------------------------
+def test_window_shows_the_cnn_refined_image_as_render_does(app, tmp_path):
+    """With a CNN avatar and "CNN refined" on, the settled view is the CNN's output: the same pixels as
+    `npga-view render` for the same camera and code; "raw splats" changes them."""
+    import cv2
+
+    path = tmp_path / "cnn.npga"
+    save_avatar(make_synthetic_avatar(3000, latent_dim=4, with_cnn=True, seed=5), path)
+    app.state.show_stats = False
+    assert app.open_avatar(str(path))
+    settle(app)
+    assert run_until(app, lambda: app.info.shown == "refined", timeout=120)
+    app.step()
+    window = app.read_window(viewport_only=True).astype(np.int16)
+    camera = app.current_camera()
+    camera.to_json(tmp_path / "cam.json")
+    np.save(tmp_path / "z.npy", app.poses.shown_code)
+    r = subprocess.run([sys.executable, "-m", "npga_view.cli", "render", str(path), "--camera",
+                        str(tmp_path / "cam.json"), "--expr", str(tmp_path / "z.npy"), "--out",
+                        str(tmp_path / "ref.png")], capture_output=True, text=True, timeout=300)
+    assert r.returncode == 0, r.stderr
+    ref = cv2.imread(str(tmp_path / "ref.png"))[:, :, ::-1].astype(np.int16)
+    assert ref.shape == window.shape
+    assert np.abs(window - ref).mean() < 1.0 and np.abs(window - ref).max() <= 12
+    click(app, "raw_splats")
+    assert run_until(app, lambda: app.info.shown == "splats")
+    settle(app)
+    raw = app.read_window(viewport_only=True).astype(np.int16)
+    assert np.abs(raw - window).mean() > 1.0  # the CNN does change the picture

@@ -179,7 +179,7 @@ class Refiner:
         return _run_traced(self._traced, self.device, image)
 
     def latent_view(self, renderer: SplatRenderer, camera: Camera, background=(0.0, 0.0, 0.0), view: str = "pca",
-                    channel: int = 0) -> np.ndarray:
+                    channel: int = 0, alpha: np.ndarray | None = None) -> np.ndarray:
         """The latent image as RGB (H, W, 3) float32 over `background`: per pixel the composited h + delta_h
         divided by the alpha (the mean latent seen there), coloured by the PCA of the canonical h ("pca") or by
         a colour map of one channel over its canonical range ("channel": coolwarm when signed, else viridis),
@@ -190,7 +190,8 @@ class Refiner:
             raise ValueError(f"unknown latent view {view!r}; choose pca or channel")
         t0 = time.perf_counter()
         latent = renderer.render_latent(camera)
-        alpha = renderer.render(camera, mode="alpha")
+        if alpha is None:  # the window passes the alpha of the image on screen (no second draw)
+            alpha = renderer.render(camera, mode="alpha")
         t1 = time.perf_counter()
         mean = latent / np.maximum(alpha, 1e-6)[..., None]
         flat = mean.reshape(-1, mean.shape[2])

@@ -90,6 +90,11 @@ class DrawScheduler:
         return "preview"
 
     @property
+    def shown_target(self) -> tuple | None:
+        """(camera key, mode, content version) of the image on screen."""
+        return None if self._shown is None else self._shown.target
+
+    @property
     def shown_version(self) -> int:
         """Content version of the image on screen (-1 before the first)."""
         return -1 if self._shown is None else self._shown.target[2]
