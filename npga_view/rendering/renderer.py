@@ -150,7 +150,7 @@ class SplatRenderer(AuxiliaryPasses):
         self._job: DrawJob | None = None
         self._job_camera: Camera | None = None
         self._job_framebuffer: moderngl.Framebuffer | None = None
-        self._ms_per_splat = 0.0  # measured cost of the colour pass per sorted position (0: not yet)
+        self._slice = 8192  # sorted positions per slice, adapted so that a slice takes about the budget
         self._id_prog = ctx.program(vertex_shader=self._load_shader("splat.vert"),
                                     fragment_shader=self._load_shader("splat_id.frag"))
         self._id_vao = ctx.vertex_array(self._id_prog, [])
@@ -437,26 +437,30 @@ class SplatRenderer(AuxiliaryPasses):
         self._activate()
         camera, external = self._job_camera, self._job_framebuffer
         fbo = external if external is not None else self._targets[1][1]
+        if not math.isinf(budget_ms):
+            # a software GL renders lazily: work queued earlier (the window's last frame) would otherwise be
+            # waited for in the first slice and be taken for the cost of splats
+            self.ctx.finish()
         t_start = time.perf_counter()
-        first_slice = True
+        last_ms = 0.0
         while job.next < job.total:
             remaining = budget_ms - (time.perf_counter() - t_start) * 1e3
-            if not first_slice and remaining <= 0:
+            if last_ms and remaining <= 0:
                 break
-            first_slice = False
             if math.isinf(budget_ms):
                 count = job.total - job.next
-            else:
-                rate = self._ms_per_splat or 0.002
-                count = min(job.total - job.next, int(max(2048, remaining / rate)))
+            else:  # the slice size follows the measured time of the last slice (a fixed cost per slice included)
+                count = self._slice if not last_ms else int(self._slice * remaining / max(budget_ms, 1e-3))
+                count = count if budget_ms > 0 else 1024
+                count = min(job.total - job.next, max(1024, count))
             t0 = time.perf_counter()
             self._draw_slice(job, camera, fbo, job.next, count)
             if self.sync_timings or not math.isinf(budget_ms):
                 self.ctx.finish()
-            ms = (time.perf_counter() - t0) * 1e3
-            if count >= 1024:
-                rate = ms / count
-                self._ms_per_splat = rate if not self._ms_per_splat else 0.5 * (self._ms_per_splat + rate)
+            ms = last_ms = (time.perf_counter() - t0) * 1e3
+            if not math.isinf(budget_ms) and count >= 1024:
+                grow = min(4.0, max(0.25, max(budget_ms, 1.0) / max(ms, 1e-3)))
+                self._slice = int(min(1 << 24, max(1024, count * grow)))
             job.next += count
             job.slices += 1
             job.draw_ms += ms
