@@ -33,6 +33,7 @@ import torch
 from npga_core.camera.cameras import Camera
 from npga_core.inspection.colouring import FeaturePCA, colour_map, robust_range
 from npga_core.model.cnn import ScreenCNN, run_cnn
+from npga_view.rendering.factory import choose_path
 from npga_view.rendering.renderer import load_shader
 
 if TYPE_CHECKING:
@@ -116,8 +117,10 @@ class Refiner:
         self._ranges: list[tuple[float, float]] = []
         self.last_timings: dict[str, float] = {}
         self._texture: moderngl.Texture | None = None
-        self._program = ctx.program(vertex_shader=load_shader("fullscreen.vert"),
-                                    fragment_shader=load_shader("composite.frag"))
+        # the composite shaders of the renderer path this context gets (4.3, or the 4.1 twins on macOS)
+        prefix = "gl41_" if choose_path(ctx) == "41" else ""
+        self._program = ctx.program(vertex_shader=load_shader(prefix + "fullscreen.vert"),
+                                    fragment_shader=load_shader(prefix + "composite.frag"))
         self._vao = ctx.vertex_array(self._program, [])
         self._pool: ThreadPoolExecutor | None = None
         self._job: tuple[object, Future, dict[str, float]] | None = None
