@@ -586,7 +586,8 @@ class ViewerApp:
         try:
             while not self.should_close:
                 self.step()
-                if quit_after_frames is not None and (self.poses.first_pose_shown or self.avatar is None):
+                if quit_after_frames is not None and (self.poses.first_pose_shown or self.avatar is None) \
+                        and self.draws.settled:
                     counted += 1
                     if counted >= quit_after_frames:
                         if screenshot:
