@@ -35,11 +35,12 @@ def camera(avatar):
     return frame_points(np.asarray(avatar.cloud.means), W, H)
 
 
-@pytest.fixture
-def renderer(ctx):
-    from npga_view.rendering.renderer import SplatRenderer
+@pytest.fixture(params=["43", "41"])
+def renderer(ctx, request):
+    """Both renderer paths (npga_view/rendering/factory.py): the refinement only uses their common API."""
+    from npga_view.rendering.factory import create_renderer
 
-    r = SplatRenderer(ctx, W, H)
+    r = create_renderer(ctx, W, H, path=request.param)
     yield r
     r.release()
 
