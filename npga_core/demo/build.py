@@ -27,6 +27,7 @@ from npga_core.demo.colors import eyelid_mask, lip_weight
 from npga_core.demo.expression_map import ExpressionMap
 from npga_core.demo.expressions import ExpressionSampler, named_weights
 from npga_core.demo.ict import DEFAULT_ICT_DIR, IctHead, load_ict
+from npga_core.demo.readme import DEFAULT_OUT, write_readme
 from npga_core.demo.sampling import interpolate, label_iris, uniform_samples
 from npga_core.demo.sequences import build_sequences
 from npga_core.demo.targets import AppearanceTargets, HeadTargets
@@ -35,8 +36,6 @@ from npga_core.inspection.graph import knn
 from npga_core.model.avatar import Avatar
 from npga_core.model.dynamics import Dynamics
 from npga_core.model.expression import ExpressionSpace
-
-DEFAULT_OUT = Path(__file__).resolve().parents[2] / "assets" / "demo"
 
 
 @dataclass
@@ -70,43 +69,6 @@ def _extra_points(head: IctHead, samples, rng: np.random.Generator, count: int):
     nrm /= np.linalg.norm(nrm, axis=1, keepdims=True)
     part = label_iris(head, pts, head.tri_part[tri])
     return tri, bary, pts, nrm, part
-
-
-def write_readme(out: Path, seed: int, quick: bool, summary: dict) -> None:
-    f = summary["f_error_mm"]["held_out"]
-    text = f"""npga-view demo avatar
-=====================
-
-avatar.npga            NPGA avatar: {summary['gaussians']} Gaussians (SH degree 1, 8-D features), dynamics F and G
-                       (6 x 256 MLPs, 100-D expression codes), expression statistics and named expressions.
-sequences/*.npzseq     Animations at 25 fps in the npga-view sequence format: {', '.join(summary['sequences'])}.
-expression_map.npz     The fixed map between codes and the 53 ARKit-style blendshape weights:
-                       z = M w + b, w = M^T (z - b)  (arrays M, b, names).
-LICENSE.ict-facekit    Licence of the source data (MIT), which must travel with this folder.
-
-Provenance: derived from the ICT-FaceKit light head model (USC Institute for Creative Technologies,
-MIT licence, see LICENSE.ict-facekit). The Gaussians were sampled on its neutral surfaces and coloured
-procedurally; F and G were distilled from its 53 expression blendshapes (plus an eyeball rotation for
-gaze). Built by `python -m npga_core.demo.build --seed {seed}{' --quick' if quick else ''}` in
-{summary['build_seconds']:.0f} s ({summary['machine']}). See docs/DEMO.md.
-
-F position error on {summary['test_expressions']} held-out expressions (mm):
-  all Gaussians  mean {f['all']['mean']:.3f}  p99 {f['all']['p99']:.3f}
-  lips           mean {f['lips']['mean']:.3f}  p99 {f['lips']['p99']:.3f}
-  eyelids        mean {f['eyelids']['mean']:.3f}  p99 {f['eyelids']['p99']:.3f}
-"""
-    r = summary.get("refine")
-    if r:
-        m, c = r["held_out"], r["config"]
-        text += f"""
-Refinement (`python -m npga_core.demo.build --stage refine --seed {r['seed']}`, {r['seconds']:.0f} s): per-Gaussian
-latent features h ({c['latent_dim']} channels), G's offsets of h (a `latent` block read out of G's last hidden
-layer) and a screen-space CNN ({len(c['cnn_kernels'])} convolutions, {c['cnn_width']} wide, residual), trained
-against the ICT head itself rendered per pixel. On {m['crops']} held-out crops (expressions and views):
-  raw splats vs target   PSNR {m['raw_psnr']:.2f} dB  SSIM {m['raw_ssim']:.4f}
-  CNN output vs target   PSNR {m['cnn_psnr']:.2f} dB  SSIM {m['cnn_ssim']:.4f}
-"""
-    (out / "README.txt").write_text(text)
 
 
 def build(out: Path, seed: int = 0, cfg: BuildConfig | None = None, ict: Path | None = None, quick: bool = False,
@@ -231,7 +193,7 @@ def main(argv: list[str] | None = None) -> int:
                    help="base: cloud, F, G, sequences; refine: latent h, G's latent block and the screen-space CNN "
                    "on top of OUT/avatar.npga; all: both (default)")
     args = p.parse_args(argv)
-    from npga_core.demo.refine_stage import refine
+    from npga_core.demo.refine_stage import refine  # torch-heavy: imported only when the build runs
 
     report: dict = {}
     try:

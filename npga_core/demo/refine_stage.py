@@ -32,13 +32,13 @@ import torch
 from torch.nn import functional as nnf
 
 from npga_core.camera.cameras import Camera, frame_points
-from npga_core.demo.build import DEFAULT_OUT, write_readme
 from npga_core.demo.canonical import build_canonical
 from npga_core.demo.colors import AlbedoModel
 from npga_core.demo.expression_map import ExpressionMap
 from npga_core.demo.expressions import ExpressionSampler
 from npga_core.demo.ict import load_ict
 from npga_core.demo.mesh_raster import crop_camera
+from npga_core.demo.readme import DEFAULT_OUT, write_readme
 from npga_core.demo.refine_targets import HeadRenderer
 from npga_core.demo.sampling import sample_surface
 from npga_core.demo.splat_raster import rasterize_splats
