@@ -155,3 +155,21 @@ def test_scaled_camera_keeps_the_field_of_view(posed):
     assert (small.width, small.height) == (100, 75)
     assert small.tan_half_fov_x == pytest.approx(cam.tan_half_fov_x, rel=1e-6)
     assert small.tan_half_fov_y == pytest.approx(cam.tan_half_fov_y, rel=1e-6)
+
+
+def test_scheduler_draws_a_live_view_once(renderer, posed):
+    """While the view stays live (a preview pose on screen, no camera move), its live image is not drawn again
+    when the adapted live scale moves: redrawing it only took the cores from the exact pose being computed."""
+    renderer.use_points = True
+    sched = DrawScheduler(renderer, budget_ms=math.inf, interactive_ms=1e6, settle_s=0.0)  # the scale grows
+    cam = frame_points(posed.means, 240, 200)
+    sched.frame(cam, "rgb", content_version=1, interacting=True, exact_content=False, now=0.0)
+    assert sched.images == 1 and sched.interactive_scale > sched.scale  # adapted upward after the image
+    for k in range(5):
+        assert not sched.frame(cam, "rgb", content_version=1, interacting=True, exact_content=False, now=0.1 * k)
+    assert sched.images == 1 and sched.status == "preview"
+    # a new pose (the next preview) is drawn; input stopping refines to full resolution
+    sched.frame(cam, "rgb", content_version=2, interacting=True, exact_content=False, now=1.0)
+    assert sched.images == 2
+    sched.frame(cam, "rgb", content_version=2, interacting=False, exact_content=False, now=2.0)
+    assert sched.images == 3 and sched.scale == 1.0

@@ -156,7 +156,9 @@ class DrawScheduler:
             want = self.interactive_scale if live else 1.0
             shown = self._shown
             stale = shown is None or shown.target != target or shown.exact_content != exact_content
-            if stale or shown.scale < want:
+            # while live, a live image of this very target stays (the adapted scale moving a little is no reason
+            # to draw it again: that only took the cores from the exact pose being computed)
+            if stale or (shown.scale < want and not (live and shown.live)):
                 if shown is None:  # first image: as fast as possible, refined right after
                     want = self.interactive_scale
                 self._start(camera, mode, _Image(target, want, exact_content, live=live or shown is None), now)
