@@ -175,6 +175,32 @@ def test_the_worker_thread_gives_the_same_image(avatar, camera, renderer, refine
     assert refiner.pending_key() is None and refiner.result("k2") is None
 
 
+def test_the_cpu_cnn_in_bands_equals_the_whole_image_and_stops_when_cancelled():
+    """The window runs the CNN in bands of rows with the receptive radius as context (so a refinement of a view
+    the person has left stops early): the bands give the whole image's output, and a cancel stops them."""
+    from npga_core.model.cnn import CNNConfig, ConvLayer, ScreenCNN, run_cnn
+    from npga_view.rendering.refinement import _run_banded
+
+    torch.manual_seed(3)
+    cfg = CNNConfig([ConvLayer(5, 8, 5, "leaky_relu"), ConvLayer(8, 8, 3, "relu"), ConvLayer(8, 3, 3, None)])
+    cnn = ScreenCNN(cfg).eval()
+    for conv in cnn.convs:  # large weights: a missing context row would change the output visibly
+        torch.nn.init.normal_(conv.weight, std=0.5)
+    image = np.random.default_rng(0).random((101, 37, 5)).astype(np.float32)
+    cpu = torch.device("cpu")
+    with torch.no_grad():
+        whole = run_cnn(cnn, image, cpu)
+        halo = sum(layer.kernel // 2 for layer in cfg.layers)
+        assert halo == 4
+        for rows in (1, 7, 16, 100, 200):
+            np.testing.assert_allclose(_run_banded(cnn, cpu, image, halo, lambda: False, rows), whole, atol=1e-4)
+        short = _run_banded(cnn, cpu, image, halo - 1, lambda: False, 16)  # too little context: not the same
+        assert np.abs(short - whole).max() > 1e-3
+        calls = []
+        assert _run_banded(cnn, cpu, image, halo, lambda: calls.append(1) or len(calls) > 2, 16) is None
+        assert len(calls) == 3  # stopped at the third band
+
+
 def test_upload_and_present_show_the_image_upright(ctx, refiner):
     import moderngl
 
@@ -277,3 +303,19 @@ def test_view_panel_toggles_raw_and_refined_and_offers_latent_views(avatar, pane
     info2 = AppInfo(avatar=make_synthetic_avatar(100, seed=1))
     frame(lambda: panel.draw(ViewerState(), info2))
     assert not {"raw_splats", "cnn_refined", "latent_view"} & set(info2.rects)
+
+
+def test_a_refinement_of_a_view_left_behind_is_cancelled():
+    """RefineController: when the view changes (the splat image is no longer settled) the running CNN job is
+    cancelled, so that it does not hold the cores while the person drags."""
+    from types import SimpleNamespace
+
+    from npga_view.controllers.refining import RefineController
+    from npga_view.panels.info import AppInfo
+
+    calls = []
+    refiner = SimpleNamespace(shows=lambda *a: "refined", cancel=lambda: calls.append("cancel"))
+    draws = SimpleNamespace(settled=False)
+    ctl = RefineController(refiner, None, draws, ViewerState(), AppInfo())
+    assert ctl.present(None, None, (0, 0, 10, 10)) is False
+    assert calls == ["cancel"] and ctl.info.shown == "splats (refining)"

@@ -45,7 +45,8 @@ class RefineController:
             self.refiner.cancel()
             info.shown = "splats"
             return False
-        if not self.draws.settled:
+        if not self.draws.settled:  # the view changed: a refinement still running is of a view left behind
+            self.refiner.cancel()
             info.shown = "splats (refining)"
             return False
         bg = tuple(float(v) for v in st.background)
