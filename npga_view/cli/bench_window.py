@@ -5,8 +5,9 @@ view's pixels back every UI frame. For each avatar it measures, with frame-budge
 off (the behaviour before it) in the same run:
 
 - first pixels: from opening the window to the first frame whose view is not empty;
-- slider move (PC 1 by +-1 sd, as the Expression panel sets it) -> first changed pixels, and -> the exact
-  full-resolution image on screen (median and p90 over the moves);
+- slider move (PC 1 by +-1 sd, as the Expression panel sets it) -> first changed pixels, -> the exact
+  full-resolution image on screen and, for an avatar with a CNN (shown refined by default), -> the CNN's image
+  of it (median and p90 over the moves);
 - orbit (2 degrees per UI frame): complete images per second (distinct view images) and UI frames per second,
   then the time from the last orbit step to the exact full-resolution image;
 - live playback of a 25 fps sequence: distinct view images per second and the playback's achieved rate;
@@ -131,7 +132,8 @@ def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, sec
         w.until(lambda: _exact(app), 300)
         out["first_exact_s"] = time.perf_counter() - t_open
         # slider moves
-        first, exact = [], []
+        first, exact, refined = [], [], []
+        cnn = app.refining.refiner.has_cnn and app.state.use_cnn  # the window shows the CNN's image when exact
         for k in range(moves):
             w.step()
             app.state.follow_sequence = False
@@ -145,8 +147,12 @@ def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, sec
             first.append(changed)
             done = w.until(lambda: _exact(app), 120)
             exact.append(None if done is None else time.perf_counter() - t0)
+            if cnn:
+                done = w.until(lambda: _exact(app) and app.info.shown == "refined", 120)
+                refined.append(None if done is None else time.perf_counter() - t0)
         out["slider_changed_s"] = _stats(first)
         out["slider_exact_s"] = _stats(exact)
+        out["slider_refined_s"] = _stats(refined)
         # orbit
         frames0, images, t0 = app.frames, 0, time.perf_counter()
         while time.perf_counter() - t0 < seconds:
@@ -236,12 +242,14 @@ def table(results: list[dict]) -> str:
         return "-" if v is None else fmt.format(v)
 
     rows = ["| avatar | budget | first pixels s | slider -> changed s (med / p90) | slider -> exact s (med) "
-            "| orbit images/s | orbit UI fps | orbit -> exact s | live images/s | baked images/s |",
-            "|---|---|---|---|---|---|---|---|---|---|"]
+            "| slider -> CNN image s (med) | orbit images/s | orbit UI fps | orbit -> exact s | live images/s "
+            "| baked images/s |",
+            "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         sc, se = r.get("slider_changed_s", {}), r.get("slider_exact_s", {})
+        sr = r.get("slider_refined_s", {})
         rows.append(f"| {r['avatar']} | {'on' if r['budget'] else 'off'} | {f(r.get('first_pixels_s'))} | "
-                    f"{f(sc.get('median'))} / {f(sc.get('p90'))} | {f(se.get('median'))} | "
+                    f"{f(sc.get('median'))} / {f(sc.get('p90'))} | {f(se.get('median'))} | {f(sr.get('median'))} | "
                     f"{f(r.get('orbit_images_per_s'), '{:.1f}')} | {f(r.get('orbit_ui_fps'), '{:.1f}')} | "
                     f"{f(r.get('orbit_exact_after_s'))} | {f(r.get('live_images_per_s'), '{:.1f}')} | "
                     f"{f(r.get('baked_images_per_s'), '{:.1f}')} |")
