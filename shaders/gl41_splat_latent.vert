@@ -10,6 +10,7 @@ uniform sampler2D u_latent;
 uniform vec2 u_viewport;
 uniform int u_latent_dim;    // H
 uniform int u_first_channel; // first latent channel of this pass
+uniform uint u_first;        // first sorted position of this draw (a slice of the sorted order)
 
 flat out vec4 v_centre_opacity;
 flat out vec3 v_conic;
@@ -22,7 +23,7 @@ float latent_value(int index, int channel) {
 }
 
 void main() {
-    Splat s = fetch_splat(gl_InstanceID);
+    Splat s = fetch_splat(gl_InstanceID + int(u_first));
     int index = int(s.conic.w + 0.5);
     v_centre_opacity = vec4(s.centre.xy, 0.0, s.centre.w);
     v_conic = s.conic.xyz;

@@ -11,13 +11,14 @@ layout(std430, binding = 4) readonly buffer LatentBuffer { float latent[]; };  /
 uniform vec2 u_viewport;
 uniform int u_latent_dim;    // H
 uniform int u_first_channel; // first latent channel of this pass
+uniform uint u_first;        // first sorted position of this draw (a slice of the sorted order)
 
 flat out vec4 v_centre_opacity;
 flat out vec3 v_conic;
 flat out vec3 v_latent[NUM_TARGETS];
 
 void main() {
-    uint index = order[gl_InstanceID];
+    uint index = order[uint(gl_InstanceID) + u_first];
     Splat s = splats[index];
     v_centre_opacity = vec4(s.centre.xy, 0.0, s.centre.w);
     v_conic = s.conic.xyz;

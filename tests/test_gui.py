@@ -487,6 +487,7 @@ def test_scale_goes_down_while_orbiting_and_back_to_full_after(app, avatar_path)
 
 
 def test_sliced_window_image_equals_one_draw(app, avatar_path):
+    app.state.use_cnn = False  # the splat image itself (the demo's CNN image would replace it once settled)
     assert app.open_avatar(avatar_path)
     settle(app)
     app.draws.budget_ms = 0.0  # the smallest slices: the image takes many UI frames

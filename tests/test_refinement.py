@@ -201,6 +201,27 @@ def test_the_cpu_cnn_in_bands_equals_the_whole_image_and_stops_when_cancelled():
         assert len(calls) == 3  # stopped at the third band
 
 
+def test_the_latent_pass_in_slices_equals_one_pass(avatar, camera, renderer):
+    """The window draws the latent image in slices over UI frames (budget 0: the smallest slices); the slices
+    blend the same sorted order, so the image is the one-pass image; a new upload drops the unfinished one."""
+    posed = avatar.pose(None)
+    renderer.set_gaussians(posed)
+    whole = renderer.render_latent(camera)
+    renderer.begin_latent(camera)
+    renderer._latent_job.slice = 97  # a small first slice, for a cloud this small
+    calls = 0
+    while (got := renderer.continue_latent(0.0)) is None:
+        calls += 1
+        assert renderer.latent_drawing and calls < 10_000
+    assert calls >= 1 and renderer.last_timings["slices"] >= 2
+    np.testing.assert_array_equal(got, whole)
+    renderer.begin_latent(camera)
+    renderer._latent_job.slice = 97
+    assert renderer.continue_latent(0.0) is None
+    renderer.set_gaussians(posed)
+    assert not renderer.latent_drawing and renderer.continue_latent(0.0) is None
+
+
 def test_upload_and_present_show_the_image_upright(ctx, refiner):
     import moderngl
 
@@ -307,15 +328,27 @@ def test_view_panel_toggles_raw_and_refined_and_offers_latent_views(avatar, pane
 
 def test_a_refinement_of_a_view_left_behind_is_cancelled():
     """RefineController: when the view changes (the splat image is no longer settled) the running CNN job is
-    cancelled, so that it does not hold the cores while the person drags."""
+    cancelled, so that it does not hold the cores while the person drags; the refined image on screen stays until
+    a splat image of the new view is finished (no flash of the old raw splats), then the raw splats are shown."""
     from types import SimpleNamespace
 
     from npga_view.controllers.refining import RefineController
     from npga_view.panels.info import AppInfo
 
     calls = []
-    refiner = SimpleNamespace(shows=lambda *a: "refined", cancel=lambda: calls.append("cancel"))
-    draws = SimpleNamespace(settled=False)
-    ctl = RefineController(refiner, None, draws, ViewerState(), AppInfo())
+    refiner = SimpleNamespace(shows=lambda *a: "refined", cancel=lambda: calls.append("cancel"),
+                              present=lambda *a, **k: calls.append("present"))
+    draws = SimpleNamespace(settled=False, shown_target=("view 1",))
+    state = ViewerState()
+    ctl = RefineController(refiner, None, draws, state, AppInfo())
+    assert ctl.present(None, None, (0, 0, 10, 10)) is False  # nothing refined yet
+    assert calls == ["cancel"] and ctl.info.shown == "splats (refining)"
+    calls.clear()
+    bg = tuple(float(v) for v in state.background)
+    ctl._key = (("view 1",), "refined", state.latent_view, state.latent_channel, bg)  # view 1 was refined
+    assert ctl.present(None, None, (0, 0, 10, 10)) is True  # view 2 is being drawn: view 1's refined image stays
+    assert calls == ["cancel", "present"] and ctl.info.shown == "refined"
+    calls.clear()
+    draws.shown_target = ("view 2",)  # the splat image of view 2 is finished, its refinement not yet
     assert ctl.present(None, None, (0, 0, 10, 10)) is False
     assert calls == ["cancel"] and ctl.info.shown == "splats (refining)"

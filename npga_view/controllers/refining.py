@@ -4,10 +4,14 @@ While the view changes, the window shows the raw splats at the live scale (label
 Once the full-resolution image of the current view is on screen (`DrawScheduler.settled`), this controller
 takes that image's RGB and alpha, runs the latent pass and either the CNN (on a worker thread of the
 `Refiner`, so the UI keeps running) or the latent colouring, uploads the result and presents it instead of the
-splats until the view changes again. Avatars without a CNN (and without h) are untouched.
+splats. When the view changes, the refined image stays on screen until the scheduler has finished a splat image
+of the new view (as the splat image itself would), and a refinement still running is cancelled. Avatars without
+a CNN (and without h) are untouched.
 """
 
 from __future__ import annotations
+
+import time
 
 import numpy as np
 
@@ -31,6 +35,8 @@ class RefineController:
         self.state = state
         self.info = info
         self._key: tuple | None = None  # what the uploaded refined/latent image shows
+        self._latent_for: tuple | None = None  # what the latent image being drawn in slices is for
+        self._latent: np.ndarray | None = None  # that latent image once finished
 
     def set_avatar(self, avatar: Avatar | None) -> None:
         """A new avatar (or an edited one): take its CNN and latent statistics."""
@@ -45,12 +51,17 @@ class RefineController:
             self.refiner.cancel()
             info.shown = "splats"
             return False
-        if not self.draws.settled:  # the view changed: a refinement still running is of a view left behind
-            self.refiner.cancel()
-            info.shown = "splats (refining)"
-            return False
         bg = tuple(float(v) for v in st.background)
         key = (self.draws.shown_target, what, st.latent_view, st.latent_channel, bg)
+        if not self.draws.settled:  # the view changed: a refinement still running is of a view left behind
+            self.refiner.cancel()
+            self._drop_latent()
+            if key == self._key:  # no new splat image yet: the refined one of the image on screen stays
+                self.refiner.present(framebuffer, viewport, flip_y=True)
+                info.shown = what
+                return True
+            info.shown = "splats (refining)"
+            return False
         if key != self._key and not self._compute(key, what, camera, bg):
             info.shown = "splats (refining)"
             return False
@@ -64,18 +75,47 @@ class RefineController:
         w, h = r.image_size
         return r._read(r._fbo, 0, w, h)
 
+    def _drop_latent(self) -> None:
+        if self._latent_for is not None:
+            self.renderer.cancel_latent()
+        self._latent_for = self._latent = None
+
+    def _latent_image(self, key: tuple, camera: Camera) -> np.ndarray | None:
+        """The latent image of the view, drawn in slices within the scheduler's budget over UI frames (the whole
+        pass at 960 x 900 took 1.1 s on llvmpipe: inside one frame it froze the window); None until finished."""
+        r = self.renderer
+        if self._latent_for != key:
+            self._drop_latent()
+            r.begin_latent(camera)
+            self._latent_for = key
+        if self._latent is None:
+            t0 = time.perf_counter()
+            self._latent = r.continue_latent(self.draws.frame_budget(False))
+            self.draws.drew_outside((time.perf_counter() - t0) * 1e3)
+            if self._latent is None and not r.latent_drawing:  # dropped by another pass: start again
+                self._latent_for = None
+        return self._latent
+
     def _compute(self, key: tuple, what: str, camera: Camera, bg: tuple[float, float, float]) -> bool:
         refiner, info = self.refiner, self.info
         try:
             if what == "latent":
+                latent = self._latent_image(key, camera)
+                if latent is None:
+                    return False
                 alpha = self._front()[..., 3]
                 image = refiner.latent_view(self.renderer, camera, bg, self.state.latent_view,
-                                            self.state.latent_channel, alpha=alpha)
+                                            self.state.latent_channel, alpha=alpha, latent=latent)
+                self._drop_latent()
             else:
                 if refiner.pending_key() != key:
+                    latent = self._latent_image(key, camera) if refiner.latent_dim else None
+                    if refiner.latent_dim and latent is None:
+                        return False
                     front = self._front()
                     rgb = front[..., :3] + (1.0 - front[..., 3:4]) * np.asarray(bg, np.float32)
-                    refiner.submit(key, self.renderer, camera, bg, rgb=rgb)
+                    refiner.submit(key, self.renderer, camera, bg, rgb=rgb, latent=latent)
+                    self._drop_latent()
                     return False
                 image = refiner.result(key)
                 if image is None:

@@ -7,7 +7,9 @@ A mixin: `SplatRenderer` inherits these; they use its buffers (`splats`, `order`
 
 from __future__ import annotations
 
+import math
 import time
+from dataclasses import dataclass
 
 import moderngl
 import numpy as np
@@ -15,6 +17,22 @@ import numpy as np
 from npga_core.camera.cameras import Camera
 
 PICK_THRESHOLD = 0.2  # alpha a Gaussian must reach at a pixel to be picked there
+
+
+@dataclass
+class _LatentJob:
+    """A latent image being drawn in slices (`begin_latent` / `continue_latent`)."""
+
+    prepared: tuple | None  # the pre-pass it draws from (dropped when another one replaces it)
+    width: int
+    height: int
+    passes: list[tuple[int, int]]  # (first channel, channels) of each pass
+    out: np.ndarray
+    pass_index: int = 0
+    next: int = 0  # next sorted position of the current pass
+    slice: int = 4096  # instances of the next slice (follows the measured time of the last)
+    slices: int = 0
+    draw_ms: float = 0.0
 
 
 class AuxiliaryPasses:
@@ -46,35 +64,83 @@ class AuxiliaryPasses:
 
         Each RGBA32F target carries three channels plus alpha; up to 8 targets (24 channels) per pass.
         """
+        self.begin_latent(camera)
+        out = self.continue_latent()
+        assert out is not None
+        return out
+
+    def begin_latent(self, camera: Camera) -> None:
+        """Start the latent image of `camera` (`render_latent` in slices): `continue_latent` draws it."""
         if self._latent_dim == 0:
             raise ValueError("the uploaded Gaussians have no latent features")
         self._activate()
-        w, h = camera.width, camera.height
         self.last_timings = {}
         self._prepare(camera, False)
-        t0 = time.perf_counter()
-        out = np.empty((h, w, self._latent_dim), dtype=np.float32)
+        w, h = camera.width, camera.height
         per_pass = 3 * self.max_targets
-        for first in range(0, self._latent_dim, per_pass):
-            channels = min(per_pass, self._latent_dim - first)
+        passes = [(first, min(per_pass, self._latent_dim - first)) for first in range(0, self._latent_dim, per_pass)]
+        self._latent_job = _LatentJob(self._prepared, w, h, passes,
+                                      np.empty((h, w, self._latent_dim), dtype=np.float32))
+
+    @property
+    def latent_drawing(self) -> bool:
+        """A latent image is started and not finished (nor dropped by a new pre-pass or upload)."""
+        job = self._latent_job
+        return job is not None and job.prepared is self._prepared
+
+    def cancel_latent(self) -> None:
+        """Drop an unfinished latent image."""
+        self._latent_job = None
+
+    def continue_latent(self, budget_ms: float = math.inf) -> np.ndarray | None:
+        """Draw slices of the started latent image for about `budget_ms` (at least one slice); the image when it
+        is finished, else None (also when a new pre-pass or upload dropped it: see `latent_drawing`)."""
+        job = self._latent_job
+        if job is None or job.prepared is not self._prepared:
+            self._latent_job = None
+            return None
+        self._activate()
+        t_start = time.perf_counter()
+        drawn = 0  # slices drawn in this call (at least one)
+        w, h = job.width, job.height
+        while job.pass_index < len(job.passes):
+            first, channels = job.passes[job.pass_index]
             targets = (channels + 2) // 3
             prog, vao = self._latent_program(targets)
             fbo, _ = self._latent_targets(w, h, targets)
             self._begin_pass(fbo, (0, 0, w, h))
-            fbo.clear(0.0, 0.0, 0.0, 0.0)
-            if self._visible:
+            if job.next == 0:
+                fbo.clear(0.0, 0.0, 0.0, 0.0)
+            while job.next < self._visible:
+                if drawn and (time.perf_counter() - t_start) * 1e3 >= budget_ms:
+                    return None
+                count = self._visible - job.next if math.isinf(budget_ms) else min(self._visible - job.next, job.slice)
+                t0 = time.perf_counter()
                 prog["u_viewport"].value = (float(w), float(h))
                 prog["u_latent_dim"].value = self._latent_dim
                 prog["u_first_channel"].value = first
+                prog["u_first"].value = job.next
                 self._bind_splats(prog)
                 self._bind_latent(prog)
-                vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._visible)
+                vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
+                if not math.isinf(budget_ms):  # a software GL renders lazily: time the slice itself
+                    self.ctx.finish()
+                    ms = (time.perf_counter() - t0) * 1e3
+                    job.slice = int(min(1 << 24, max(1024, count * min(4.0, max(0.25, budget_ms / 2 / max(ms, 1e-3))))))
+                job.draw_ms += (time.perf_counter() - t0) * 1e3
+                job.next += count
+                job.slices += 1
+                drawn += 1
             for k in range(targets):
                 lo = first + 3 * k
                 n = min(3, self._latent_dim - lo)
-                out[..., lo:lo + n] = self._read(fbo, k, w, h)[..., :n]
-        self.last_timings["draw"] = (time.perf_counter() - t0) * 1e3
-        return out
+                job.out[..., lo:lo + n] = self._read(fbo, k, w, h)[..., :n]
+            job.pass_index += 1
+            job.next = 0
+        self._latent_job = None
+        self.last_timings["draw"] = job.draw_ms
+        self.last_timings["slices"] = float(job.slices)
+        return job.out
 
     # --- inspection ----------------------------------------------------------------------------
     @property

@@ -206,7 +206,7 @@ class Refiner:
         return _run_traced(self._traced, self.device, image)
 
     def latent_view(self, renderer: SplatRenderer, camera: Camera, background=(0.0, 0.0, 0.0), view: str = "pca",
-                    channel: int = 0, alpha: np.ndarray | None = None) -> np.ndarray:
+                    channel: int = 0, alpha: np.ndarray | None = None, latent: np.ndarray | None = None) -> np.ndarray:
         """The latent image as RGB (H, W, 3) float32 over `background`: per pixel the composited h + delta_h
         divided by the alpha (the mean latent seen there), coloured by the PCA of the canonical h ("pca") or by
         a colour map of one channel over its canonical range ("channel": coolwarm when signed, else viridis),
@@ -216,7 +216,8 @@ class Refiner:
         if view not in ("pca", "channel"):
             raise ValueError(f"unknown latent view {view!r}; choose pca or channel")
         t0 = time.perf_counter()
-        latent = renderer.render_latent(camera)
+        if latent is None:  # the window passes the latent image it drew in slices
+            latent = renderer.render_latent(camera)
         if alpha is None:  # the window passes the alpha of the image on screen (no second draw)
             alpha = renderer.render(camera, mode="alpha")
         t1 = time.perf_counter()
@@ -250,11 +251,12 @@ class Refiner:
 
     # --- the CNN on a worker thread ---------------------------------------------------------------------
     def submit(self, key: object, renderer: SplatRenderer, camera: Camera, background=(0.0, 0.0, 0.0),
-               rgb: np.ndarray | None = None) -> None:
+               rgb: np.ndarray | None = None, latent: np.ndarray | None = None) -> None:
         """Start refining: the GL passes now (this thread holds the context), the CNN on a worker thread.
 
         `key` names what is refined (e.g. camera key, content version, background); `result(key)` returns the
-        image once it is done. A new submit replaces an unfinished one (whose result is dropped).
+        image once it is done. A new submit replaces an unfinished one (whose result is dropped). `rgb` and `latent`
+        are the colour image over the background and the latent image of `camera` when the caller has them.
         """
         if self.cnn is None:
             raise ValueError("the avatar has no CNN for its latent features")
@@ -267,7 +269,9 @@ class Refiner:
             rgb = renderer.render(camera, background)
             timings["rgb"] = (time.perf_counter() - t0) * 1e3
         t1 = time.perf_counter()
-        image = np.concatenate([rgb, renderer.render_latent(camera)], axis=2) if self.latent_dim else rgb
+        if self.latent_dim and latent is None:  # the window passes the latent image it drew in slices
+            latent = renderer.render_latent(camera)
+        image = np.concatenate([rgb, latent], axis=2) if self.latent_dim else rgb
         timings["latent"] = (time.perf_counter() - t1) * 1e3
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="npga-cnn")

@@ -173,6 +173,7 @@ class SplatRenderer(AuxiliaryPasses):
         self._size = (0, 0)  # size of the back target
         self._targets: list[tuple[moderngl.Texture, moderngl.Framebuffer] | None] = [None, None]  # front, back
         self._latent_fbo: tuple[int, moderngl.Framebuffer, list[moderngl.Texture]] | None = None
+        self._latent_job = None  # a latent image being drawn in slices (aux_passes.begin_latent)
         self._prepared: tuple | None = None  # (camera key, flip) of the current splat buffer + order
         self._visible = 0
         self.attribute_uploads = 0  # number of set_gaussians calls (camera moves must not add to it)

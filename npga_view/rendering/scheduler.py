@@ -68,6 +68,7 @@ class DrawScheduler:
         self._last_change = -math.inf  # when the camera or mode last changed
         self._frame_end: float | None = None
         self.ui_ms = 0.0  # the UI frame's own time (everything but splat drawing), smoothed
+        self._outside_ms = 0.0  # drawing since the last frame() done elsewhere (`drew_outside`)
         self.last_image_ms = 0.0  # drawing time (pre-pass + slices) of the last finished image
         self.last_image_wall_ms = 0.0  # wall time from its start to its end (spans UI frames)
         self.images = 0  # finished images so far
@@ -122,12 +123,18 @@ class DrawScheduler:
         """Advance drawing for this UI frame; True when a new finished image was swapped to the front."""
         frame_start = time.perf_counter()
         if self._frame_end is not None:
-            gap = (frame_start - self._frame_end) * 1e3
+            gap = max(0.0, (frame_start - self._frame_end) * 1e3 - self._outside_ms)
             self.ui_ms = gap if not self.ui_ms else 0.8 * self.ui_ms + 0.2 * gap
+        self._outside_ms = 0.0
         try:
             return self._frame(camera, mode, content_version, interacting, exact_content, now, frame_start)
         finally:
             self._frame_end = time.perf_counter()
+
+    def drew_outside(self, ms: float) -> None:
+        """Drawing done elsewhere in this UI frame within `frame_budget` (the refinement's latent pass): not
+        counted as the UI's own time."""
+        self._outside_ms += ms
 
     def _frame(self, camera: Camera, mode: str, content_version: int, interacting: bool, exact_content: bool,
                now: float | None, frame_start: float) -> bool:
@@ -164,10 +171,13 @@ class DrawScheduler:
                 self._start(camera, mode, _Image(target, want, exact_content, live=live or shown is None), now)
         if self._job is None:
             return False
-        # while nothing changes, the refinement may take as long as the rest of the UI frame (so that it gets
-        # at least half of the machine), never less than the budget
-        budget = self.budget_ms if live else max(self.budget_ms, min(self.ui_ms, 4 * self.budget_ms))
-        return self._continue(budget, frame_start)
+        return self._continue(self.frame_budget(live), frame_start)
+
+    def frame_budget(self, live: bool) -> float:
+        """Milliseconds of drawing per UI frame: `budget_ms` while the view changes; while nothing changes, a
+        refinement may take as long as the rest of the UI frame (so that it gets at least half of the machine),
+        never less than the budget and at most 4 times it."""
+        return self.budget_ms if live else max(self.budget_ms, min(self.ui_ms, 4 * self.budget_ms))
 
     def _start(self, camera: Camera, mode: str, image: _Image, now: float) -> None:
         self.renderer.begin_draw(scaled_camera(camera, image.scale), mode)
