@@ -337,10 +337,14 @@ def test_a_refinement_of_a_view_left_behind_is_cancelled():
 
     calls = []
     refiner = SimpleNamespace(shows=lambda *a: "refined", cancel=lambda: calls.append("cancel"),
-                              present=lambda *a, **k: calls.append("present"))
+                              present=lambda *a, **k: calls.append("present"), latent_dim=4)
     draws = SimpleNamespace(settled=False, shown_target=("view 1",))
     state = ViewerState()
-    ctl = RefineController(refiner, None, draws, state, AppInfo())
+    renderer = SimpleNamespace(latent_dim=0)
+    ctl = RefineController(refiner, renderer, draws, state, AppInfo())
+    draws.settled = True  # nothing uploaded yet (the view of an empty renderer is settled at once): no error
+    assert ctl.present(None, None, (0, 0, 10, 10)) is False and ctl.info.shown == "splats" and not state.errors
+    draws.settled, renderer.latent_dim = False, 4
     assert ctl.present(None, None, (0, 0, 10, 10)) is False  # nothing refined yet
     assert calls == ["cancel"] and ctl.info.shown == "splats (refining)"
     calls.clear()

@@ -53,6 +53,9 @@ class RefineController:
             return False
         bg = tuple(float(v) for v in st.background)
         key = (self.draws.shown_target, what, st.latent_view, st.latent_channel, bg)
+        if self.renderer.latent_dim != self.refiner.latent_dim:  # nothing uploaded yet (or not this avatar's)
+            info.shown = "splats"
+            return False
         if not self.draws.settled:  # the view changed: a refinement still running is of a view left behind
             self.refiner.cancel()
             self._drop_latent()
