@@ -587,7 +587,7 @@ class ViewerApp:
             while not self.should_close:
                 self.step()
                 if quit_after_frames is not None and (self.poses.first_pose_shown or self.avatar is None) \
-                        and self.draws.settled:
+                        and self.draws.settled and self.refining.complete:
                     counted += 1
                     if counted >= quit_after_frames:
                         if screenshot:

@@ -347,11 +347,12 @@ def test_a_refinement_of_a_view_left_behind_is_cancelled():
     draws.settled, renderer.latent_dim = False, 4
     assert ctl.present(None, None, (0, 0, 10, 10)) is False  # nothing refined yet
     assert calls == ["cancel"] and ctl.info.shown == "splats (refining)"
+    assert not ctl.complete  # scripted screenshots wait
     calls.clear()
     bg = tuple(float(v) for v in state.background)
     ctl._key = (("view 1",), "refined", state.latent_view, state.latent_channel, bg)  # view 1 was refined
     assert ctl.present(None, None, (0, 0, 10, 10)) is True  # view 2 is being drawn: view 1's refined image stays
-    assert calls == ["cancel", "present"] and ctl.info.shown == "refined"
+    assert calls == ["cancel", "present"] and ctl.info.shown == "refined" and ctl.complete
     calls.clear()
     draws.shown_target = ("view 2",)  # the splat image of view 2 is finished, its refinement not yet
     assert ctl.present(None, None, (0, 0, 10, 10)) is False

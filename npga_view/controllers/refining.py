@@ -78,6 +78,12 @@ class RefineController:
         w, h = r.image_size
         return r._read(r._fbo, 0, w, h)
 
+    @property
+    def complete(self) -> bool:
+        """The image on screen is what the state asks for: the refined or latent image once it is ready, or the
+        splats where nothing is refined (scripted screenshots wait for this)."""
+        return self.info.shown != "splats (refining)"
+
     def _drop_latent(self) -> None:
         if self._latent_for is not None:
             self.renderer.cancel_latent()
