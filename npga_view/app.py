@@ -88,6 +88,8 @@ class ViewerApp:
         # frame_budget_ms=None is the behaviour before budgeting (benchmarks compare both): every change drawn
         # at once in full, a blank view until the first pose, exact poses only in playback
         self.legacy = frame_budget_ms is None
+        self.idle_wait_s = 0.0 if self.legacy else 1.0 / 30.0  # see step(); the legacy loop spins as before
+        self._was_quiet = False
         self.state = ViewerState()
         self.info = AppInfo(renderer_path=self.renderer.path)
         # the screen-space CNN (on the dynamics' GPU when one is asked for) and latent views, on settled images
@@ -455,15 +457,17 @@ class ViewerApp:
         """The current view is not yet on screen at full resolution (an image is pending or being drawn)."""
         return not self.draws.settled
 
+    def _input_active(self) -> bool:
+        """A drag or a held widget, or playback (of a sequence or of keyframes)."""
+        io = imgui.get_io()
+        dragging = not io.want_capture_mouse and any(imgui.is_mouse_down(b) for b in range(3))
+        playing = self.sequence is not None and self.state.follow_sequence and self.state.timeline.playing
+        return dragging or imgui.is_any_item_active() or playing or self.edits.kf_playing
+
     def _interacting(self) -> bool:
         """The view is changing now: a drag or slider, playback, or a pose that will be replaced (a preview
         or the canonical cloud before the first pose). Draws at the live scale meanwhile."""
-        io = imgui.get_io()
-        info = self.info
-        dragging = not io.want_capture_mouse and any(imgui.is_mouse_down(b) for b in range(3))
-        playing = self.sequence is not None and self.state.follow_sequence and self.state.timeline.playing
-        return (dragging or imgui.is_any_item_active() or playing or self.edits.kf_playing or info.preview
-                or info.canonical)
+        return self._input_active() or self.info.preview or self.info.canonical
 
     def _draw_splats(self) -> None:
         cam = self.current_camera()
@@ -510,9 +514,22 @@ class ViewerApp:
             panel.draw(self.state, self.info)
         imgui.end()
 
+    def _quiet(self) -> bool:
+        """Nothing to draw in this window until something arrives: the view's image is on screen and nothing is
+        being drawn or refined, no input held, no playback, recording or queued action (a pose may be on its way
+        from the worker)."""
+        return (self.draws.idle and self.refining.complete and not self._input_active()
+                and not self.state.actions and not self.recorder.recording)
+
     def step(self) -> None:
-        """One frame: input, panels, actions, dynamics, splats, UI."""
-        glfw.poll_events()
+        """One frame: input, panels, actions, dynamics, splats, UI. After a quiet frame the next one waits for
+        input for up to `idle_wait_s` (worker results and threads are picked up at that rate) instead of
+        spinning: an idle window on llvmpipe otherwise redraws ~80 times a second on the cores the pose worker
+        and the CNN need."""
+        if self._was_quiet and self.idle_wait_s > 0:
+            glfw.wait_events_timeout(self.idle_wait_s)
+        else:
+            glfw.poll_events()
         now = time.perf_counter()
         dt, self._last_t = now - self._last_t, now
         self._fps_t = [t for t in self._fps_t if now - t < 1.0] + [now]
@@ -542,6 +559,7 @@ class ViewerApp:
         imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
         glfw.swap_buffers(self.window)
         self.frames += 1
+        self._was_quiet = self._quiet()
         if glfw.window_should_close(self.window):
             self.should_close = True
 

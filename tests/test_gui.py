@@ -538,3 +538,37 @@ def test_window_shows_the_cnn_refined_image_as_render_does(app, tmp_path):
     settle(app)
     raw = app.read_window(viewport_only=True).astype(np.int16)
     assert np.abs(raw - window).mean() > 1.0  # the CNN does change the picture
+
+
+def test_an_idle_window_waits_for_input_instead_of_spinning(app, avatar_path, monkeypatch, tmp_path):
+    """Once the view is on screen and nothing is drawn, the loop waits for input (up to idle_wait_s, so worker
+    results still arrive) instead of redrawing as fast as it can; a pose from the worker is still taken and
+    drawn while waiting, and playback never waits."""
+    import glfw
+
+    waits = []
+    real_wait = glfw.wait_events_timeout
+    monkeypatch.setattr(glfw, "wait_events_timeout", lambda t: (waits.append(t), real_wait(t)))
+    assert app.open_avatar(avatar_path)
+    settle(app)
+    assert run_until(app, lambda: app._was_quiet)
+    waits.clear()
+    app.step()
+    assert waits == [pytest.approx(1.0 / 30.0)]
+    # a slider move made while waiting (no input event): the new exact pose still reaches the screen
+    version = app.draws.shown_version
+    app.state.follow_sequence = False
+    app.state.sliders[0] += 1.0
+    assert run_until(app, lambda: app.draws.shown_version != version and app.draws.settled
+                     and not app.info.preview and app.engine.pending is None, timeout=120)
+    # playback is never quiet
+    codes = np.repeat(app.avatar.expression.mean[None], 50, axis=0).astype(np.float32)
+    ExpressionSequence(codes, 25.0, "still").save(tmp_path / "still.npzseq")
+    assert app.open_sequence(str(tmp_path / "still.npzseq"))
+    app.state.follow_sequence, app.state.timeline.playing = True, True
+    app.step()
+    app.step()
+    assert not app._was_quiet
+    waits.clear()
+    app.step()
+    assert waits == []

@@ -69,6 +69,7 @@ class DrawScheduler:
         self._frame_end: float | None = None
         self.ui_ms = 0.0  # the UI frame's own time (everything but splat drawing), smoothed
         self._outside_ms = 0.0  # drawing since the last frame() done elsewhere (`drew_outside`)
+        self._live = False  # the last frame was an interaction (see `idle`)
         self.last_image_ms = 0.0  # drawing time (pre-pass + slices) of the last finished image
         self.last_image_wall_ms = 0.0  # wall time from its start to its end (spans UI frames)
         self.images = 0  # finished images so far
@@ -105,6 +106,15 @@ class DrawScheduler:
         """The current view is on screen at full resolution and nothing is being drawn."""
         shown = self._shown
         return self._job is None and shown is not None and shown.target == self._target and shown.scale >= 1.0
+
+    @property
+    def idle(self) -> bool:
+        """Nothing to draw next frame unless the view or its content changes: the current view's image is on
+        screen and nothing is being drawn (a live image counts while the last frame was live; else only the
+        full-resolution one)."""
+        shown = self._shown
+        return (self._job is None and shown is not None and shown.target == self._target
+                and (shown.scale >= 1.0 or self._live))
 
     @property
     def progress(self) -> float:
@@ -147,6 +157,7 @@ class DrawScheduler:
                 self._last_change = now
             self._view = (key, mode)
         live = interacting or (now - self._last_change) < self.settle_s
+        self._live = interacting  # (not the settle time: a live image is refined once it has passed)
         r = self.renderer
         if not self.enabled:
             if self._shown is not None and self._shown.target == target and self._shown.scale >= 1.0:
