@@ -49,6 +49,7 @@ class RefineController:
         what = self.refiner.shows(st.use_cnn, st.latent_view, st.mode)
         if what is None:
             self.refiner.cancel()
+            self._drop_latent()
             info.shown = "splats"
             return False
         bg = tuple(float(v) for v in st.background)
@@ -59,13 +60,10 @@ class RefineController:
         if not self.draws.settled:  # the view changed: a refinement still running is of a view left behind
             self.refiner.cancel()
             self._drop_latent()
-            if key == self._key:  # no new splat image yet: the refined one of the image on screen stays
-                self.refiner.present(framebuffer, viewport, flip_y=True)
-                info.shown = what
-                return True
-            info.shown = "splats (refining)"
-            return False
-        if key != self._key and not self._compute(key, what, camera, bg):
+            ready = key == self._key  # no new splat image yet: the refined one of the image on screen stays
+        else:
+            ready = key == self._key or self._compute(key, what, camera, bg)
+        if not ready:
             info.shown = "splats (refining)"
             return False
         self.refiner.present(framebuffer, viewport, flip_y=True)

@@ -111,22 +111,21 @@ class AuxiliaryPasses:
             self._begin_pass(fbo, (0, 0, w, h))
             if job.next == 0:
                 fbo.clear(0.0, 0.0, 0.0, 0.0)
+            prog["u_viewport"].value = (float(w), float(h))
+            prog["u_latent_dim"].value = self._latent_dim
+            prog["u_first_channel"].value = first
+            self._bind_splats(prog)
+            self._bind_latent(prog)
             while job.next < self._visible:
                 if drawn and (time.perf_counter() - t_start) * 1e3 >= budget_ms:
                     return None
                 count = self._visible - job.next if math.isinf(budget_ms) else min(self._visible - job.next, job.slice)
                 t0 = time.perf_counter()
-                prog["u_viewport"].value = (float(w), float(h))
-                prog["u_latent_dim"].value = self._latent_dim
-                prog["u_first_channel"].value = first
                 prog["u_first"].value = job.next
-                self._bind_splats(prog)
-                self._bind_latent(prog)
                 vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
                 if not math.isinf(budget_ms):  # a software GL renders lazily: time the slice itself
                     self.ctx.finish()
-                    ms = (time.perf_counter() - t0) * 1e3
-                    job.slice = int(min(1 << 24, max(1024, count * min(4.0, max(0.25, budget_ms / 2 / max(ms, 1e-3))))))
+                    job.slice = self._next_slice(count, (time.perf_counter() - t0) * 1e3, budget_ms)
                 job.draw_ms += (time.perf_counter() - t0) * 1e3
                 job.next += count
                 job.slices += 1

@@ -197,6 +197,13 @@ class SplatRenderer(AuxiliaryPasses):
         """Make the latent features readable by the latent program `prog`."""
         self._buffers["latent"].bind_to_storage_buffer(4)
 
+    @staticmethod
+    def _next_slice(count: int, ms: float, budget_ms: float) -> int:
+        """Size of the next slice of a sliced draw (colour or latent), from the `ms` a slice of `count` took:
+        scaled toward the budget (at most 4x up or down), 1024 to 2**24."""
+        grow = min(4.0, max(0.25, max(budget_ms, 1.0) / max(ms, 1e-3)))
+        return int(min(1 << 24, max(1024, count * grow)))
+
     def _activate(self) -> None:
         """Make this renderer's context current: with several contexts in one process (a window and a
         headless one, or tests) moderngl does not switch by itself, and GL calls would reach the wrong one."""
@@ -317,8 +324,6 @@ class SplatRenderer(AuxiliaryPasses):
         self._buffer("sh", sh)
         self._buffer("splats", size=n * 64)
         self._buffer("order", size=n * 4)
-        if n != self._count:
-            self._job = None  # the buffers it draws from may be reallocated
         self._buffer("counter", size=8)
         if posed.latent is not None:
             latent = np.ascontiguousarray(posed.latent, dtype=np.float32).reshape(n, -1)
@@ -326,6 +331,13 @@ class SplatRenderer(AuxiliaryPasses):
             self._buffer("latent", latent)
         else:
             self._latent_dim = 0
+        self._uploaded(means, n, t0)
+
+    def _uploaded(self, means: np.ndarray, n: int, t0: float) -> None:
+        """Bookkeeping after `set_gaussians` (both paths): a cloud of another size drops an unfinished image
+        (the buffers it draws from may be reallocated); the next draw runs the pre-pass again."""
+        if n != self._count:
+            self._job = None
         self._means = means
         self._count = n
         self._prepared = None
@@ -333,15 +345,23 @@ class SplatRenderer(AuxiliaryPasses):
         self._pending_upload_ms += (time.perf_counter() - t0) * 1e3
 
     # --- per-camera work -----------------------------------------------------------------------
+    def _start_prepare(self, key: tuple) -> float | None:
+        """Start of `_prepare` (both paths): None if the pre-pass of `key` is current (its timings are recorded as
+        zero), else the upload time still to be reported with it; an unfinished image is then dropped, since the
+        new pre-pass overwrites the splats it draws from."""
+        upload_ms, self._pending_upload_ms = self._pending_upload_ms, 0.0
+        if self._prepared == key:
+            self.last_timings.update(sort=0.0, upload=upload_ms, preprocess=0.0)
+            return None
+        self._job = None
+        return upload_ms
+
     def _prepare(self, camera: Camera, flip_y: bool) -> None:
         """Sort and run the pre-pass for `camera` (skipped when camera and data are unchanged)."""
         key = (*camera_key(camera), flip_y)
-        timings = {"sort": 0.0, "upload": self._pending_upload_ms, "preprocess": 0.0}
-        self._pending_upload_ms = 0.0
-        if self._prepared == key:
-            self.last_timings.update(timings)
+        upload_ms = self._start_prepare(key)
+        if upload_ms is None:
             return
-        self._job = None  # a new pre-pass overwrites the splats an unfinished image draws from
         t0 = time.perf_counter()
         z = view_depths(self._means, camera.world_to_camera)
         order = sort_back_to_front(z, NEAR, exact=self.exact_sort)
@@ -369,8 +389,7 @@ class SplatRenderer(AuxiliaryPasses):
         self.ctx.memory_barrier()
         self._oversize = int(np.frombuffer(self._buffers["counter"].read(size=8), np.uint32)[1])
         t3 = time.perf_counter()
-        timings.update(sort=(t1 - t0) * 1e3, upload=timings["upload"] + (t2 - t1) * 1e3, preprocess=(t3 - t2) * 1e3)
-        self.last_timings.update(timings)
+        self.last_timings.update(sort=(t1 - t0) * 1e3, upload=upload_ms + (t2 - t1) * 1e3, preprocess=(t3 - t2) * 1e3)
         self._prepared = key
 
     def _begin_pass(self, fbo: moderngl.Framebuffer, viewport: tuple[int, int, int, int]) -> None:
@@ -460,8 +479,7 @@ class SplatRenderer(AuxiliaryPasses):
                 self.ctx.finish()
             ms = last_ms = (time.perf_counter() - t0) * 1e3
             if not math.isinf(budget_ms) and count >= 1024:
-                grow = min(4.0, max(0.25, max(budget_ms, 1.0) / max(ms, 1e-3)))
-                self._slice = int(min(1 << 24, max(1024, count * grow)))
+                self._slice = self._next_slice(count, ms, budget_ms)
             job.next += count
             job.slices += 1
             job.draw_ms += ms

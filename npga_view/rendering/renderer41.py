@@ -319,23 +319,14 @@ class SplatRenderer41(SplatRenderer):
             self._upload("latent", padded)
         else:
             self._latent_dim = 0
-        if n != self._count:
-            self._job = None
-        self._means = means
-        self._count = n
-        self._prepared = None
-        self.attribute_uploads += 1
-        self._pending_upload_ms += (time.perf_counter() - t0) * 1e3
+        self._uploaded(means, n, t0)
 
     def _prepare(self, camera: Camera, flip_y: bool) -> None:
         """Sort and run the CPU pre-pass for `camera` (skipped when camera and data are unchanged)."""
         key = (*camera_key(camera), flip_y)
-        timings = {"sort": 0.0, "upload": self._pending_upload_ms, "preprocess": 0.0}
-        self._pending_upload_ms = 0.0
-        if self._prepared == key:
-            self.last_timings.update(timings)
+        upload_ms = self._start_prepare(key)
+        if upload_ms is None:
             return
-        self._job = None  # the splat texture an unfinished image draws from is rewritten
         t0 = time.perf_counter()
         z = view_depths(self._means, camera.world_to_camera)
         order = sort_back_to_front(z, NEAR, exact=self.exact_sort)
@@ -347,8 +338,7 @@ class SplatRenderer41(SplatRenderer):
             self._upload("splats", splats)
         self._visible = len(splats)
         t3 = time.perf_counter()
-        timings.update(sort=(t1 - t0) * 1e3, preprocess=(t2 - t1) * 1e3, upload=timings["upload"] + (t3 - t2) * 1e3)
-        self.last_timings.update(timings)
+        self.last_timings.update(sort=(t1 - t0) * 1e3, preprocess=(t2 - t1) * 1e3, upload=upload_ms + (t3 - t2) * 1e3)
         self._prepared = key
 
     def _bind_splats(self, prog: moderngl.Program) -> None:
