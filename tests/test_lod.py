@@ -114,12 +114,11 @@ def test_kd_clusters_edges():
 
 # --- LevelOfDetail.merge ------------------------------------------------------------------------------------
 def check_output(m: PosedGaussians, count: int) -> None:
-    """Float32, finite, unit quaternions, positive scales, opacities in (0, 0.99]; C-order except quats (a known
-    bug, test_merged_arrays_c_contiguous)."""
-    for name, a in vars(m).items():
+    """Float32, C-ordered, finite, unit quaternions, positive scales, opacities in (0, 0.99]."""
+    for a in vars(m).values():
         if a is not None:
             assert a.shape[0] == count and a.dtype == np.float32 and np.isfinite(a).all()
-            assert a.flags.c_contiguous or name == "quats"
+            assert a.flags.c_contiguous
     assert np.allclose(np.linalg.norm(m.quats, axis=1), 1.0, atol=1e-5)
     assert np.all(m.scales > 0) and np.all(m.opacities > 0) and np.all(m.opacities <= np.float32(0.99))
 
@@ -191,15 +190,10 @@ def test_identical_pair_stacks(o: float):
     assert m.opacities[0] == pytest.approx(min(stacked, 0.99), rel=1e-5)
 
 
-@pytest.mark.parametrize("clusters", [
-    1024, 4096,
-    pytest.param(1000, marks=pytest.mark.xfail(strict=True, reason="BUG in lod.py: ~2**ceil(log2 clusters) Gaussians")),
-    pytest.param(3000, marks=pytest.mark.xfail(strict=True, reason="BUG in lod.py: ~2**ceil(log2 clusters) Gaussians")),
-])
+@pytest.mark.parametrize("clusters", [1024, 4096, 1000, 3000])
 def test_merged_count_and_output(clusters: int):
-    """`CLUSTERS` promises at most `clusters` Gaussians and at least half; a k-d split that halves every group
-    until it has <= ceil(N / clusters) members gives 2**ceil(log2(clusters)) of them (1000 -> 1024, 3000 -> 3856
-    for N = 20000), which holds only for powers of two."""
+    """At most `clusters` Gaussians and more than half of it, for powers of two and others (a first version gave
+    2**ceil(log2(clusters)): 1000 -> 1024, 3000 -> 3856 for N = 20000)."""
     g = random_cloud(20000, seed=8)
     level = lod.LevelOfDetail(g.means, clusters)
     m = level.merge(g)
@@ -207,9 +201,8 @@ def test_merged_count_and_output(clusters: int):
     assert clusters / 2 <= level.clusters <= clusters
 
 
-@pytest.mark.xfail(strict=True, reason="BUG in lod.py: merge's quats are Fortran-ordered (quat_from_matrix output "
-                   "not made C-contiguous); PosedGaussians promises C-contiguous arrays")
 def test_merged_arrays_c_contiguous():
+    """PosedGaussians promises C-contiguous arrays (a first version returned Fortran-ordered quats)."""
     g = random_cloud(500, seed=10)
     m = lod.LevelOfDetail(g.means, 32).merge(g)
     assert [k for k, a in vars(m).items() if not a.flags.c_contiguous] == []

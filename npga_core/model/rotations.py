@@ -46,10 +46,15 @@ def rotvec_from_matrix(m) -> np.ndarray:
     return Rotation.from_matrix(b).as_rotvec().reshape(*lead, 3)
 
 
-def quat_from_matrix(m) -> np.ndarray:
-    """Unit quaternions (..., 4) (w, x, y, z), w >= 0, of rotation matrices (..., 3, 3)."""
+def quat_from_matrix(m, proper: bool = False) -> np.ndarray:
+    """Unit quaternions (..., 4) (w, x, y, z), w >= 0, of rotation matrices (..., 3, 3). `proper`: the caller
+    knows they are orthonormal with determinant 1 (skips scipy's orthonormalisation, ~10x faster)."""
     b, lead = _batch(m, (3, 3))
-    return _wxyz(Rotation.from_matrix(b).as_quat(canonical=True)).reshape(*lead, 4)
+    try:
+        rot = Rotation.from_matrix(b, assume_valid=proper) if proper else Rotation.from_matrix(b)
+    except TypeError:  # scipy before `assume_valid`
+        rot = Rotation.from_matrix(b)
+    return _wxyz(rot.as_quat(canonical=True)).reshape(*lead, 4)
 
 
 def matrix_from_quat(q) -> np.ndarray:

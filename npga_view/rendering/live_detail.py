@@ -1,0 +1,145 @@
+"""`LiveDetail`: the level-of-detail cloud the window draws its live images from, merged in a thread.
+
+On llvmpipe an image costs about a microsecond of vertex work per splat at any resolution (the demo's 79k
+Gaussians: ~70 ms even at 144x135), so live images (a drag, a slider, playback) cannot come faster than that
+from the full cloud. While the view changes the `DrawScheduler` draws them from a merged cloud of at most
+`clusters` Gaussians instead (`npga_core.model.lod`: moment matching over a fixed k-d grouping), with a
+second renderer of the same path; once input stops the full-resolution image is drawn from every Gaussian.
+
+Every cloud the window shows is `submit`ted with its content version (kept, not merged). The scheduler asks
+for the merged cloud of a version with `request(version)` when only the camera moves (an orbit: one merge
+serves every image of it); a pose that changes every image (playback, a slider drag) is drawn in full, since
+its merge would cost about as much as the draw it saves and arrive after the next pose. A daemon thread
+merges (a newer request replaces one not yet started) while the UI goes on (numpy releases the GIL in the
+heavy parts); `request` uploads a finished merge and returns the renderer, or None; `pending(version)` says
+that one is on its way, so the scheduler can wait a moment for it instead of drawing the full cloud.
+Clouds of fewer than `min_count` Gaussians are drawn in full (a merge would save little), as are inspection
+styles that draw every Gaussian ("points", "ellipsoids") and views with line overlays.
+"""
+
+from __future__ import annotations
+
+import threading
+import time
+from collections.abc import Callable
+
+from npga_core.model.gaussians import PosedGaussians
+from npga_core.model.lod import CLUSTERS, LevelOfDetail
+from npga_view.rendering.renderer import SplatRenderer
+
+
+class LiveDetail:
+    """See the module docstring. `make_renderer()` creates the second renderer (on first use, in the UI thread);
+    `full` is the window's renderer, whose style and overlays decide whether a merged cloud may stand in."""
+
+    def __init__(self, make_renderer: Callable[[], SplatRenderer], full: SplatRenderer, clusters: int = CLUSTERS,
+                 min_count: int | None = None, enabled: bool = True) -> None:
+        self._make_renderer = make_renderer
+        self.full = full
+        self.clusters = clusters
+        self.min_count = 2 * clusters if min_count is None else min_count
+        self.enabled = enabled
+        self.renderer: SplatRenderer | None = None
+        self._cond = threading.Condition()
+        self._latest: tuple[int, PosedGaussians] | None = None  # the newest cloud shown
+        self._request: tuple[int, PosedGaussians] | None = None  # the cloud to merge next
+        self._working = -1  # version being merged
+        self._done: tuple[int, PosedGaussians] | None = None  # newest merge, not uploaded yet
+        self._uploaded = -1  # version in the renderer
+        self._grouping: LevelOfDetail | None = None
+        self._generation = 0  # bumped by `reset`: a merge started before is thrown away
+        self._stop = False
+        self._thread: threading.Thread | None = None
+        self.merge_ms = 0.0  # the last merge (grouping included when it was built for it)
+        self.error: str | None = None  # why the last merge failed, if it did
+
+    # ------------------------------------------------------------------------------------------ input
+    def submit(self, version: int, posed: PosedGaussians) -> None:
+        """The window shows `posed` as content `version` (merged when `request`ed)."""
+        self._latest = (version, posed) if self.enabled and len(posed) >= self.min_count else None
+
+    def reset(self) -> None:
+        """The avatar changed: group its Gaussians anew with the next cloud."""
+        with self._cond:
+            self._grouping = None
+            self._request = self._done = self._latest = None
+            self._uploaded = -1
+            self._generation += 1
+
+    # ----------------------------------------------------------------------------------------- output
+    def usable(self) -> bool:
+        """A merged cloud may stand in for the full one now (on, and the full renderer draws plain splats)."""
+        return self.enabled and self.full.style == "splats" and not self.full.line_count
+
+    def pending(self, version: int) -> bool:
+        """A merge of `version` is queued or running."""
+        with self._cond:
+            return self._working == version or (self._request is not None and self._request[0] == version)
+
+    def request(self, version: int) -> SplatRenderer | None:
+        """The renderer holding the merged cloud of `version` (uploaded now if it has just been merged), or None;
+        then its merge is started unless it is on its way (or `version` is not the newest cloud submitted)."""
+        if not self.usable():
+            return None
+        with self._cond:
+            done, self._done = self._done, None
+            if done is None and self._uploaded != version and self._working != version:
+                latest = self._latest
+                queued = self._request is not None and self._request[0] == version
+                if latest is not None and latest[0] == version and not queued:
+                    self._request = latest
+                    self._cond.notify()
+        if done is not None:
+            if self.renderer is None:
+                self.renderer = self._make_renderer()
+            self.renderer.set_gaussians(done[1])
+            self._uploaded = done[0]
+        if self._request is not None and self._thread is None:
+            self._thread = threading.Thread(target=self._run, name="npga-live-detail", daemon=True)
+            self._thread.start()
+        return self.renderer if self._uploaded == version and self.renderer is not None else None
+
+    @property
+    def count(self) -> int:
+        """Gaussians in the uploaded merged cloud (0 before the first)."""
+        return 0 if self.renderer is None else self.renderer.count
+
+    def close(self) -> None:
+        """Stop the thread and free the renderer (call with the window's context current)."""
+        with self._cond:
+            self._stop = True
+            self._cond.notify()
+        if self._thread is not None:
+            self._thread.join(timeout=5.0)
+            self._thread = None
+        if self.renderer is not None:
+            self.renderer.release()
+            self.renderer = None
+
+    # ----------------------------------------------------------------------------------------- thread
+    def _run(self) -> None:
+        while True:
+            with self._cond:
+                while self._request is None and not self._stop:
+                    self._cond.wait()
+                if self._stop:
+                    return
+                (version, posed), self._request = self._request, None
+                self._working = version
+                grouping, generation = self._grouping, self._generation
+            t0 = time.perf_counter()
+            try:
+                if grouping is None or grouping.count != len(posed):
+                    grouping = LevelOfDetail(posed.means, self.clusters)
+                merged = grouping.merge(posed)
+            except (ValueError, FloatingPointError, MemoryError) as e:
+                with self._cond:
+                    self.error, self._working = f"level of detail: {e}", -1
+                continue
+            with self._cond:
+                self._working = -1
+                if generation != self._generation:
+                    continue
+                self.merge_ms = (time.perf_counter() - t0) * 1e3
+                self._grouping = grouping
+                self._done = (version, merged)

@@ -1,0 +1,151 @@
+"""Live images from a merged level-of-detail cloud (#14): `LiveDetail` and the `DrawScheduler` using it.
+
+Headless (EGL / OSMesa llvmpipe). The merge itself is tested in tests/test_lod.py; here: the thread delivers
+the newest cloud, the scheduler draws live images from it, waits a moment for a merge on its way, and always
+draws the full-resolution image from every Gaussian (the same pixels as a plain draw).
+"""
+
+from __future__ import annotations
+
+import math
+import time
+
+import numpy as np
+import pytest
+
+from npga_core.camera.cameras import frame_points
+from npga_core.model.synthetic import make_synthetic_avatar
+from npga_view.rendering.live_detail import LiveDetail
+from npga_view.rendering.renderer import SplatRenderer
+from npga_view.rendering.scheduler import DrawScheduler
+
+CLUSTERS = 1024
+
+
+@pytest.fixture(scope="module")
+def avatar():
+    return make_synthetic_avatar(6000, seed=5)
+
+
+@pytest.fixture()
+def full(ctx, avatar):
+    r = SplatRenderer(ctx, 64, 64)
+    r.set_gaussians(avatar.pose())
+    yield r
+    r.release()
+
+
+@pytest.fixture()
+def lod(ctx, full):
+    detail = LiveDetail(lambda: SplatRenderer(ctx, 64, 64), full, clusters=CLUSTERS)
+    yield detail
+    detail.close()
+
+
+def _wait_for(cond, timeout: float = 60.0) -> bool:
+    """A condition with a generous bound (the machine may be busy), not a rate."""
+    t0 = time.perf_counter()
+    while time.perf_counter() - t0 < timeout:
+        if cond():
+            return True
+        time.sleep(0.005)
+    return False
+
+
+def _image(r: SplatRenderer) -> np.ndarray:
+    w, h = r.image_size
+    return r._read(r._fbo, 0, w, h).copy()
+
+
+def test_a_requested_cloud_is_merged_in_the_thread(lod, avatar):
+    a, b = avatar.pose(), avatar.pose(np.full(avatar.code_dim, 0.5, np.float32))
+    lod.submit(1, a)
+    assert not lod.pending(1)  # a cloud shown is not merged until asked for
+    assert lod.request(1) is None and lod.pending(1)
+    lod.submit(2, b)
+    assert lod.request(1) is None  # no longer the newest cloud: not asked for again
+    assert lod.request(2) is None and lod.pending(2)
+    assert _wait_for(lambda: lod.request(2) is not None)
+    assert not lod.pending(2) and lod.request(1) is None
+    merged = lod.request(2)
+    assert merged.count == lod.count and CLUSTERS // 2 < merged.count <= CLUSTERS
+    assert lod.merge_ms > 0 and lod.error is None
+
+
+def test_small_clouds_and_other_styles_are_drawn_in_full(lod, full, avatar):
+    small = avatar.pose().subset(np.arange(2 * CLUSTERS - 1))
+    lod.submit(1, small)
+    assert lod.request(1) is None and not lod.pending(1)  # below min_count: nothing to merge
+    lod.submit(2, avatar.pose())
+    assert _wait_for(lambda: lod.request(2) is not None)
+    full.style = "points"
+    try:
+        assert not lod.usable() and lod.request(2) is None
+    finally:
+        full.style = "splats"
+    assert lod.request(2) is not None
+
+
+def test_reset_drops_what_was_merged_for_the_old_avatar(lod, avatar):
+    lod.submit(1, avatar.pose())
+    assert _wait_for(lambda: lod.request(1) is not None)
+    lod.reset()
+    assert lod.request(1) is None and not lod.pending(1)  # (the cloud shown was forgotten too)
+
+
+def test_live_images_come_from_the_merged_cloud_and_the_exact_one_from_all(lod, full, avatar):
+    full.use_points = True
+    sched = DrawScheduler(full, budget_ms=math.inf, settle_s=0.0, lod=lod)
+    cam = frame_points(avatar.pose().means, 200, 180)
+    lod.submit(1, avatar.pose())
+    sched.frame(cam, "rgb", content_version=1, interacting=True, now=0.0)
+    assert sched.images == 1 and sched.shown_merged == 0  # a new pose: drawn in full, its merge not asked for
+    assert not lod.pending(1)
+    # the camera moves, the pose stays: its merge is asked for, waited for, and live images come from it
+    moved = frame_points(avatar.pose().means, 200, 180, direction="three_quarter_right")
+    assert not sched.frame(moved, "rgb", content_version=1, interacting=True, now=0.1)
+    assert lod.pending(1) or lod.request(1) is not None
+    assert _wait_for(lambda: lod.request(1) is not None)
+    sched.frame(moved, "rgb", content_version=1, interacting=True, now=0.15)
+    assert sched.images == 2 and sched.shown_merged == lod.count and sched.shown_renderer is lod.renderer
+    assert sched.status == "preview"
+    # a new pose while live (playback, a slider): in full again
+    lod.submit(2, avatar.pose(np.full(avatar.code_dim, 0.3, np.float32)))
+    sched.frame(moved, "rgb", content_version=2, interacting=True, now=0.2)
+    assert sched.images == 3 and sched.shown_merged == 0
+    # input stops: full resolution from every Gaussian, the pixels of a plain draw
+    sched.frame(moved, "rgb", content_version=2, interacting=False, now=1.0)
+    assert sched.settled and sched.status == "exact" and sched.shown_merged == 0 and sched.scale == 1.0
+    exact = _image(full)
+    full.draw(moved)
+    np.testing.assert_array_equal(exact, _image(full))
+
+
+class _SlowMerge:
+    """A `LiveDetail` whose merge of every version is on its way and never arrives."""
+
+    def usable(self) -> bool:
+        return True
+
+    def pending(self, version: int) -> bool:
+        return True
+
+    def request(self, version: int):
+        return None
+
+
+def test_scheduler_waits_a_moment_for_a_merge_on_its_way(full, avatar):
+    full.use_points = True
+    sched = DrawScheduler(full, budget_ms=math.inf, settle_s=0.0, lod=_SlowMerge(), lod_wait_ms=200.0)
+    cam = frame_points(avatar.pose().means, 160, 140)
+    moved = frame_points(avatar.pose().means, 160, 140, direction="right")
+    assert sched.frame(cam, "rgb", content_version=1, interacting=True, now=0.0)  # the first image never waits
+    assert not sched.frame(moved, "rgb", content_version=1, interacting=True, now=1.0)  # waits for the merge
+    assert not sched.frame(moved, "rgb", content_version=1, interacting=True, now=1.1)
+    assert sched.images == 1
+    assert sched.frame(moved, "rgb", content_version=1, interacting=True, now=1.25)  # waited long enough: in full
+    assert sched.images == 2 and sched.shown_merged == 0
+    assert sched.frame(moved, "rgb", content_version=2, interacting=True, now=1.3)  # a new pose never waits
+    # not live: the full-resolution image is drawn at once, nothing is waited for
+    assert sched.frame(cam, "rgb", content_version=3, interacting=False, now=5.0)
+    assert sched.shown_version == 3 and sched.scale == 1.0
