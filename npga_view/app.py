@@ -37,6 +37,7 @@ from npga_view.panels.files import AVATAR_EXT
 from npga_view.panels.info import AppInfo
 from npga_view.rendering.factory import create_renderer
 from npga_view.rendering.gl import release_current_egl, window_context
+from npga_view.rendering.live_detail import LiveDetail
 from npga_view.rendering.refinement import Refiner
 from npga_view.rendering.renderer import NEAR
 from npga_view.rendering.scheduler import DrawScheduler
@@ -50,7 +51,7 @@ class ViewerApp:
 
     def __init__(self, width: int = 1360, height: int = 900, visible: bool = True, vsync: bool = True,
                  threads: int = 2, remember_recent: bool = True, device: str = "cpu",
-                 frame_budget_ms: float | None = 25.0):
+                 frame_budget_ms: float | None = 25.0, level_of_detail: bool = True):
         release_current_egl()  # a current headless context of this process would make the window's GLX fail
         if not glfw.init():
             raise RuntimeError("glfw could not initialise (no display? set DISPLAY or use Xvfb)")
@@ -81,9 +82,12 @@ class ViewerApp:
         imgui.backends.opengl3_init("#version 330")
         self.ctx = window_context()
         self.renderer = create_renderer(self.ctx, 64, 64)  # the 4.3 path, or the 4.1 one (macOS)
+        # live images from a merged level-of-detail cloud (a second renderer, merged in a thread)
+        self.lod = LiveDetail(lambda: create_renderer(self.ctx, 64, 64), self.renderer,
+                              enabled=frame_budget_ms is not None and level_of_detail)
         # frame-budgeted, adaptive-resolution drawing; frame_budget_ms=None draws every change at once in full
         self.draws = DrawScheduler(self.renderer, budget_ms=frame_budget_ms or 25.0,
-                                   enabled=frame_budget_ms is not None)
+                                   enabled=frame_budget_ms is not None, lod=self.lod)
         self.content_version = 0  # incremented whenever the cloud on screen (or how it is coloured) changes
         # frame_budget_ms=None is the behaviour before budgeting (benchmarks compare both): every change drawn
         # at once in full, a blank view until the first pose, exact poses only in playback
@@ -156,6 +160,7 @@ class ViewerApp:
         self.poses.reset()
         self.inspector = Inspector(avatar)
         self.refining.set_avatar(avatar)
+        self.lod.reset()
         self.state.inspect.picked = None
         self.poses.first_pose_shown = False
         if avatar.dynamics is not None and avatar.source:
@@ -197,14 +202,16 @@ class ViewerApp:
                 self.info.inspect = self.info.inspect or InspectInfo()
                 self.info.inspect.error = str(e)
         if frame is None:
-            self.renderer.set_gaussians(highlight(posed, session))
+            uploaded = highlight(posed, session)
+            self.renderer.set_gaussians(uploaded)
             self.renderer.clear_lines()
             self._colouring = None
         else:
-            frame.posed = highlight(frame.posed, session)
+            uploaded = frame.posed = highlight(frame.posed, session)
             self.renderer.show(frame)
             self._colouring = frame.colouring
         self.content_version += 1
+        self.lod.submit(self.content_version, uploaded)
         self._inspect_info_due = True
 
     def _inspect_camera_key(self) -> tuple | None:
@@ -226,6 +233,7 @@ class ViewerApp:
         """The canonical cloud was edited: re-pose it (in the worker, from `worker_path`, if animatable)."""
         self.inspector = Inspector(self.avatar)
         self.refining.set_avatar(self.avatar)
+        self.lod.reset()
         if self.state.inspect.picked is not None and self.state.inspect.picked >= len(self.avatar):
             self.state.inspect.picked = None
         if worker_path is None:
@@ -474,9 +482,11 @@ class ViewerApp:
         info = self.info
         exact = not (info.preview or info.canonical or info.interpolated)
         if self.draws.frame(cam, self.state.mode, self.content_version, self._interacting(), exact_content=exact):
-            t = self.renderer.last_timings
+            t = self.draws.shown_renderer.last_timings
             info.timings.update({k: t[k] for k in ("sort", "upload", "preprocess", "draw") if k in t})
-            info.gaussians_drawn = int(t.get("visible", 0))
+            info.merged_splats = self.draws.shown_merged
+            if not info.merged_splats:  # (a merged cloud's count is not the number of the avatar's in view)
+                info.gaussians_drawn = int(t.get("visible", 0))
             self._inspect_info_due = True
             self.poses.presented(self.draws.shown_version)
         info.draw_scale, info.image_status = self.draws.scale, self.draws.status
@@ -492,7 +502,7 @@ class ViewerApp:
         if self.refining.present(cam, self.ctx.screen, (x, y, w, h)):
             return
         bg = self.state.background if self.state.mode == "rgb" else (0.0, 0.0, 0.0)
-        self.renderer.present(self.ctx.screen, bg, flip_y=True, viewport=(x, y, w, h))
+        self.draws.present(self.ctx.screen, bg, flip_y=True, viewport=(x, y, w, h))
 
     def _draw_ui(self) -> None:
         fw, fh = glfw.get_window_size(self.window)
@@ -634,6 +644,7 @@ class ViewerApp:
             self.engine = None
         self.edits.close()
         if self.window is not None:
+            self.lod.close()
             self.refining.release()
             imgui.backends.opengl3_shutdown()
             imgui.backends.glfw_shutdown()

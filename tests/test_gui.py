@@ -572,3 +572,26 @@ def test_an_idle_window_waits_for_input_instead_of_spinning(app, avatar_path, mo
     waits.clear()
     app.step()
     assert waits == []
+
+
+def test_orbit_draws_live_images_from_the_merged_cloud_and_the_exact_one_from_all(app, avatar_path, tmp_path):
+    """While only the camera moves, live images come from the merged level-of-detail cloud (the overlay says
+    so); once it stops, the full-resolution image is drawn from every Gaussian."""
+    assert app.open_avatar(avatar_path)
+    app.lod.min_count = 0  # (the small synthetic avatar, when the demo is not built, is merged too)
+    settle(app)
+    merged = []
+    for _ in range(400):
+        app.state.camera.orbit(2.0, 0.0)
+        app.step()
+        merged.append(app.info.merged_splats)
+        if app.info.merged_splats:
+            break
+    assert merged[-1] == app.lod.count > 0 and app.lod.count < len(app.avatar)
+    assert app.info.image_status == "preview" and app.draws.shown_renderer is app.lod.renderer
+    app.screenshot(str(tmp_path / "orbit_merged.png"))
+    assert app.read_window(viewport_only=True).max() > 40  # the merged avatar on screen
+    assert run_until(app, lambda: app.draws.settled, timeout=120)
+    app.step()
+    assert app.info.merged_splats == 0 and app.info.image_status == "exact" and app.draws.scale == 1.0
+    assert app.draws.shown_renderer is app.renderer

@@ -95,7 +95,9 @@ def test_reset_drops_what_was_merged_for_the_old_avatar(lod, avatar):
 
 def test_live_images_come_from_the_merged_cloud_and_the_exact_one_from_all(lod, full, avatar):
     full.use_points = True
-    sched = DrawScheduler(full, budget_ms=math.inf, settle_s=0.0, lod=lod)
+    # interactive_ms: as slow as llvmpipe (live images of the full cloud stay below full resolution)
+    sched = DrawScheduler(full, budget_ms=math.inf, interactive_ms=1e-3, settle_s=0.0, lod=lod)
+    sched.lod_above_ms = 0.0  # as if a full-resolution image did not fit in the budget (llvmpipe)
     cam = frame_points(avatar.pose().means, 200, 180)
     lod.submit(1, avatar.pose())
     sched.frame(cam, "rgb", content_version=1, interacting=True, now=0.0)
@@ -136,7 +138,9 @@ class _SlowMerge:
 
 def test_scheduler_waits_a_moment_for_a_merge_on_its_way(full, avatar):
     full.use_points = True
-    sched = DrawScheduler(full, budget_ms=math.inf, settle_s=0.0, lod=_SlowMerge(), lod_wait_ms=200.0)
+    sched = DrawScheduler(full, budget_ms=math.inf, interactive_ms=1e-3, settle_s=0.0, lod=_SlowMerge(),
+                          lod_wait_ms=200.0)
+    sched.lod_above_ms = 0.0
     cam = frame_points(avatar.pose().means, 160, 140)
     moved = frame_points(avatar.pose().means, 160, 140, direction="right")
     assert sched.frame(cam, "rgb", content_version=1, interacting=True, now=0.0)  # the first image never waits
@@ -149,3 +153,18 @@ def test_scheduler_waits_a_moment_for_a_merge_on_its_way(full, avatar):
     # not live: the full-resolution image is drawn at once, nothing is waited for
     assert sched.frame(cam, "rgb", content_version=3, interacting=False, now=5.0)
     assert sched.shown_version == 3 and sched.scale == 1.0
+
+
+def test_no_merged_cloud_where_a_full_image_fits_in_the_budget(lod, full, avatar):
+    """On a GPU a full-resolution image of every Gaussian fits in the frame budget: the merged cloud is never
+    asked for."""
+    full.use_points = True
+    sched = DrawScheduler(full, budget_ms=1e9, interactive_ms=1e9, settle_s=0.0, lod=lod)
+    lod.submit(1, avatar.pose())
+    cam = frame_points(avatar.pose().means, 120, 100)
+    t = 0.0
+    for direction in ("front", "right", "left", "three_quarter_right", "front", "right"):
+        sched.frame(frame_points(avatar.pose().means, 120, 100, direction=direction), "rgb", 1, True, now=t)
+        t += 0.1
+    assert sched.images == 6 and sched.shown_merged == 0 and not lod.pending(1) and lod.renderer is None
+    assert sched.frame(cam, "rgb", 1, False, now=t + 1) and sched.settled

@@ -1,8 +1,9 @@
 """`npga-view bench --window`: what a person sees in the real window, measured on its pixels.
 
 Drives the real `ViewerApp` (under the current DISPLAY, or a private Xvfb) at 1360x900 and reads the splat
-view's pixels back every UI frame. For each avatar it measures, with frame-budgeted adaptive drawing on and
-off (the behaviour before it) in the same run:
+view's pixels back every UI frame. For each avatar it measures, in the same run, frame-budgeted adaptive
+drawing with live images from the merged level-of-detail cloud ("budget + LOD", the default), without it
+("budget") and budgeting off (the behaviour before both):
 
 - first pixels: from opening the window to the first frame whose view is not empty;
 - slider move (PC 1 by +-1 sd, as the Expression panel sets it) -> first changed pixels, -> the exact
@@ -114,15 +115,16 @@ def warm_up(avatar: str, timeout: float = 600.0) -> str:
         app.close()
 
 
-def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, seconds: float = 6.0) -> dict:
-    """All figures for one avatar with budgeting on or off."""
+def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, seconds: float = 6.0,
+            lod: bool = True) -> dict:
+    """All figures for one avatar with budgeting on or off, live images from the merged cloud (`lod`) or not."""
     from npga_view.app import ViewerApp
 
     t_open = time.perf_counter()
     app = ViewerApp(*SIZE, vsync=False, threads=2, remember_recent=False,
-                    frame_budget_ms=25.0 if budget else None)
+                    frame_budget_ms=25.0 if budget else None, level_of_detail=lod)
     w = _Watcher(app)
-    out: dict = {"avatar": Path(avatar).name if avatar != "demo" else "demo", "budget": budget}
+    out: dict = {"avatar": Path(avatar).name if avatar != "demo" else "demo", "budget": budget, "lod": budget and lod}
     try:
         app.state.show_stats = False  # the overlay's figures change every frame: only the splats are watched
         app.open_avatar(avatar)
@@ -162,6 +164,7 @@ def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, sec
         out["orbit_images_per_s"] = images / dt
         out["orbit_ui_fps"] = (app.frames - frames0) / dt
         out["orbit_scale"] = app.draws.scale
+        out["orbit_merged"] = app.draws.shown_merged
         t0 = time.perf_counter()
         done = w.until(lambda: _exact(app), 120)
         out["orbit_exact_after_s"] = None if done is None else time.perf_counter() - t0
@@ -210,7 +213,8 @@ def _synthetic(n: int, folder: Path) -> tuple[str, str]:
 
 
 def run(gaussians: list[int], demo: bool, json_path: Path | None, moves: int = 6, seconds: float = 6.0) -> list[dict]:
-    """Measure the demo and synthetic avatars of the given sizes, budgeting on and off, and print a table."""
+    """Measure the demo and synthetic avatars of the given sizes (budgeting on with and without the merged live
+cloud, and off) and print a table."""
     from npga_core.files.loading import DEMO_DIR
 
     proc = _start_xvfb()
@@ -224,8 +228,8 @@ def run(gaussians: list[int], demo: bool, json_path: Path | None, moves: int = 6
             cases += [_synthetic(n, Path(tmp)) for n in gaussians]
             for avatar, seq in cases:
                 print(f"warm-up {avatar}: preview model {warm_up(avatar)}", flush=True)
-                for budget in (True, False):
-                    results.append(measure(avatar, seq, budget, moves, seconds))
+                for budget, lod in ((True, True), (True, False), (False, False)):
+                    results.append(measure(avatar, seq, budget, moves, seconds, lod))
                     print(json.dumps(results[-1]), flush=True)
     finally:
         if proc is not None:
@@ -241,14 +245,15 @@ def table(results: list[dict]) -> str:
     def f(v, fmt="{:.2f}"):
         return "-" if v is None else fmt.format(v)
 
-    rows = ["| avatar | budget | first pixels s | slider -> changed s (med / p90) | slider -> exact s (med) "
+    rows = ["| avatar | drawing | first pixels s | slider -> changed s (med / p90) | slider -> exact s (med) "
             "| slider -> CNN image s (med) | orbit images/s | orbit UI fps | orbit -> exact s | live images/s "
             "| baked images/s |",
             "|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         sc, se = r.get("slider_changed_s", {}), r.get("slider_exact_s", {})
         sr = r.get("slider_refined_s", {})
-        rows.append(f"| {r['avatar']} | {'on' if r['budget'] else 'off'} | {f(r.get('first_pixels_s'))} | "
+        drawing = ("budget + LOD" if r.get("lod") else "budget") if r["budget"] else "off"
+        rows.append(f"| {r['avatar']} | {drawing} | {f(r.get('first_pixels_s'))} | "
                     f"{f(sc.get('median'))} / {f(sc.get('p90'))} | {f(se.get('median'))} | {f(sr.get('median'))} | "
                     f"{f(r.get('orbit_images_per_s'), '{:.1f}')} | {f(r.get('orbit_ui_fps'), '{:.1f}')} | "
                     f"{f(r.get('orbit_exact_after_s'))} | {f(r.get('live_images_per_s'), '{:.1f}')} | "

@@ -47,6 +47,7 @@ class AppInfo:
     image_status: str = "exact"  # DrawScheduler.status: "preview", "refining" or "exact"
     image_ms: float = 0.0  # drawing time of the last finished splat image
     draw_progress: float = 1.0  # fraction of the image being drawn
+    merged_splats: int = 0  # the image on screen was drawn from a merged level-of-detail cloud of this many (0: all)
     renderer_path: str = ""  # the splat renderer's path (SplatRenderer.path: OpenGL 4.3 or 4.1)
 
 

@@ -41,6 +41,8 @@ def _body(info: AppInfo) -> None:
     line = f"image: {status}, scale {info.draw_scale:.2f}, {info.image_ms:.0f} ms"
     if status == "refining":
         line += f" ({info.draw_progress:.0%} drawn)"
+    if info.merged_splats:
+        line += f", {info.merged_splats:,} merged Gaussians"
     if info.shown in ("refined", "latent"):  # what replaces the splats of the settled view
         line += ", CNN refined" if info.shown == "refined" else ", latent view"
     elif info.shown == "splats (refining)" and status == "exact":

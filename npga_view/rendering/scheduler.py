@@ -15,6 +15,14 @@ interacting (dragging, moving sliders, playing). The scheduler then
 - once input stops, draws the current view at full resolution ("refining"), then stops drawing ("exact",
   if the cloud on screen is the exact pose, else "preview").
 
+While only the camera moves (an orbit), live images come from a level-of-detail cloud when one is handed in
+(`LiveDetail`: a few times fewer, merged Gaussians, drawn by a second renderer): on a software GL every splat
+costs vertex work at any resolution, so that is what makes live images cheap there. While the merge of the
+pose on screen is on its way (a thread, tens of ms) the scheduler waits for it up to `lod_wait_ms` instead of
+drawing the full cloud. Its live scale adapts to `lod_interactive_ms`. A pose that changes every image
+(playback, a slider), every full-resolution image, and everything where a full-resolution image of all
+Gaussians fits in the budget (a GPU) are drawn from all Gaussians.
+
 An unfinished image is finished even if the view changed meanwhile (so complete images keep coming during a
 long drag), unless it is a full-resolution refinement that a new interaction makes pointless: that one is
 dropped. With `enabled=False` every change is drawn at once at full resolution inside the frame (the
@@ -28,6 +36,7 @@ import time
 from dataclasses import dataclass
 
 from npga_core.camera.cameras import Camera
+from npga_view.rendering.live_detail import LiveDetail
 from npga_view.rendering.renderer import SplatRenderer, camera_key
 
 
@@ -46,20 +55,29 @@ class _Image:
     scale: float
     exact_content: bool  # the cloud drawn was the exact pose (not a preview)
     live: bool = False  # drawn at the live scale while the view changed
+    renderer: SplatRenderer | None = None  # who draws it: the full cloud's renderer or the merged cloud's
 
 
 class DrawScheduler:
     """See the module docstring. `frame()` once per UI frame; `status` and `scale` describe the shown image."""
 
     def __init__(self, renderer: SplatRenderer, budget_ms: float = 25.0, interactive_ms: float = 120.0,
-                 min_scale: float = 0.2, settle_s: float = 0.3, enabled: bool = True):
+                 min_scale: float = 0.2, settle_s: float = 0.3, enabled: bool = True,
+                 lod: LiveDetail | None = None, lod_wait_ms: float = 200.0, lod_interactive_ms: float = 40.0):
         self.renderer = renderer
+        self.lod = lod
+        self.lod_wait_ms = lod_wait_ms
+        self.lod_interactive_ms = lod_interactive_ms
+        self.lod_above_ms = budget_ms  # the merged cloud only where a full-resolution image costs more than this
+        self.target_fps = 30.0  # the UI rate live images of the merged cloud leave room for (`frame_budget`)
+        self._lod_wait: tuple[int, float] | None = None  # (content version, since when) waited for its merge
         self.budget_ms = budget_ms
         self.interactive_ms = interactive_ms
         self.min_scale = min_scale
         self.settle_s = settle_s
         self.enabled = enabled
         self.interactive_scale = 0.5  # the scale for live images, adapted to the measured cost
+        self.lod_scale = 0.5  # the same for live images of the merged cloud
         self._shown: _Image | None = None
         self._job: _Image | None = None
         self._job_t0 = 0.0
@@ -71,6 +89,8 @@ class DrawScheduler:
         self._outside_ms = 0.0  # drawing since the last frame() done elsewhere (`drew_outside`)
         self._live = False  # the last frame was an interaction (see `idle`)
         self.last_image_ms = 0.0  # drawing time (pre-pass + slices) of the last finished image
+        #: drawing time of a full-resolution image of every Gaussian, measured (or from a reduced one, / scale^2)
+        self.full_image_ms: float | None = None
         self.last_image_wall_ms = 0.0  # wall time from its start to its end (spans UI frames)
         self.images = 0  # finished images so far
 
@@ -119,13 +139,31 @@ class DrawScheduler:
     @property
     def progress(self) -> float:
         """How much of the image being drawn is done (1.0 when none)."""
-        return self.renderer.progress if self._job is not None else 1.0
+        return self._job.renderer.progress if self._job is not None else 1.0
+
+    @property
+    def shown_renderer(self) -> SplatRenderer:
+        """The renderer that drew the image on screen (the full cloud's before the first image)."""
+        return self.renderer if self._shown is None else self._shown.renderer
+
+    @property
+    def shown_merged(self) -> int:
+        """Gaussians of the merged cloud the image on screen was drawn from (0: the full cloud)."""
+        r = self.shown_renderer
+        return 0 if r is self.renderer else r.count
 
     def invalidate(self) -> None:
         """Forget the shown image (e.g. the renderer's targets were dropped): the next frame draws anew."""
+        if self._job is not None:
+            self._job.renderer.cancel_draw()
         self._shown = None
         self._job = None
         self.renderer.cancel_draw()
+
+    def present(self, framebuffer, background=(0.0, 0.0, 0.0), flip_y: bool = True,
+                viewport: tuple[int, int, int, int] | None = None) -> None:
+        """Show the finished image on screen (`SplatRenderer.present` of the renderer that drew it)."""
+        self.shown_renderer.present(framebuffer, background, flip_y, viewport)
 
     # ---------------------------------------------------------------------------------------- per frame
     def frame(self, camera: Camera, mode: str, content_version: int, interacting: bool,
@@ -158,46 +196,72 @@ class DrawScheduler:
             self._view = (key, mode)
         live = interacting or (now - self._last_change) < self.settle_s
         self._live = interacting  # (not the settle time: a live image is refined once it has passed)
-        r = self.renderer
         if not self.enabled:
             if self._shown is not None and self._shown.target == target and self._shown.scale >= 1.0:
                 return False
             self._start(camera, mode, _Image(target, 1.0, exact_content), now)
             return self._continue(math.inf, frame_start)
         job = self._job
-        if job is not None and not r.drawing:  # dropped by the renderer (another pass re-ran the pre-pass)
+        if job is not None and not job.renderer.drawing:  # dropped (another pass re-ran the pre-pass)
             self._job = job = None
-        if job is not None and job.target != target and live and job.scale > self.interactive_scale + 1e-6:
-            r.cancel_draw()  # a full-resolution refinement of a view the person has already left
+        if job is not None and job.target != target and live and not job.live:
+            job.renderer.cancel_draw()  # a full-resolution refinement of a view the person has already left
             self._job = job = None
         if job is None:
-            want = self.interactive_scale if live else 1.0
             shown = self._shown
+            source, want = self.renderer, (self.interactive_scale if live else 1.0)
+            # the merged cloud when only the camera moves (its content is the one on screen already) and an image of
+            # the full cloud does not fit in the budget at full resolution (on a GPU it does: no merged cloud there)
+            steady = (shown is not None and shown.target[2] == content_version and self.full_image_ms is not None
+                      and self.full_image_ms > self.lod_above_ms)
+            merged = self.lod.request(content_version) if live and steady and self.lod is not None else None
+            if merged is not None:
+                source, want = merged, self.lod_scale
             stale = shown is None or shown.target != target or shown.exact_content != exact_content
             # while live, a live image of this very target stays (the adapted scale moving a little is no reason
             # to draw it again: that only took the cores from the exact pose being computed)
             if stale or (shown.scale < want and not (live and shown.live)):
+                if live and steady and merged is None and self._wait_for_merge(content_version, now):
+                    return False  # the merged cloud of this pose is nearly there: cheaper than the full one
                 if shown is None:  # first image: as fast as possible, refined right after
-                    want = self.interactive_scale
-                self._start(camera, mode, _Image(target, want, exact_content, live=live or shown is None), now)
+                    want = self.lod_scale if merged is not None else self.interactive_scale
+                self._start(camera, mode, _Image(target, want, exact_content, live=live or shown is None,
+                                                 renderer=source), now)
         if self._job is None:
             return False
-        return self._continue(self.frame_budget(live), frame_start)
+        merged = self._job.renderer is not self.renderer
+        return self._continue(self.frame_budget(live, merged), frame_start)
 
-    def frame_budget(self, live: bool) -> float:
-        """Milliseconds of drawing per UI frame: `budget_ms` while the view changes; while nothing changes, a
-        refinement may take as long as the rest of the UI frame (so that it gets at least half of the machine),
-        never less than the budget and at most 4 times it."""
-        return self.budget_ms if live else max(self.budget_ms, min(self.ui_ms, 4 * self.budget_ms))
+    def _wait_for_merge(self, version: int, now: float) -> bool:
+        """Whether to wait for the merged cloud of `version` rather than draw the full one (up to `lod_wait_ms`
+        from the first frame that wanted it)."""
+        if self.lod is None or not self.lod.usable() or not self.lod.pending(version):
+            return False
+        if self._lod_wait is None or self._lod_wait[0] != version:
+            self._lod_wait = (version, now)
+        return (now - self._lod_wait[1]) * 1e3 < self.lod_wait_ms
+
+    def frame_budget(self, live: bool, merged: bool = False) -> float:
+        """Milliseconds of drawing per UI frame: `budget_ms` while the view changes, and for images of the merged
+        cloud (cheap enough) only what keeps the UI at `target_fps` beside the UI's own time (at least a third of
+        the budget); while nothing changes, a refinement may take as long as the rest of the UI frame (so that it
+        gets at least half of the machine), never less than the budget and at most 4 times it."""
+        if not live:
+            return max(self.budget_ms, min(self.ui_ms, 4 * self.budget_ms))
+        if merged:
+            return min(self.budget_ms, max(self.budget_ms / 3, 1e3 / self.target_fps - self.ui_ms))
+        return self.budget_ms
 
     def _start(self, camera: Camera, mode: str, image: _Image, now: float) -> None:
-        self.renderer.begin_draw(scaled_camera(camera, image.scale), mode)
+        if image.renderer is None:
+            image.renderer = self.renderer
+        image.renderer.begin_draw(scaled_camera(camera, image.scale), mode)
         self._job = image
         self._job_t0 = now
 
     def _continue(self, budget_ms: float, frame_start: float) -> bool:
         """Draw until `budget_ms` after `frame_start` is spent (the pre-pass of a new image counts)."""
-        r = self.renderer
+        r = self._job.renderer
         left = budget_ms - (time.perf_counter() - frame_start) * 1e3
         if not r.continue_draw(max(left, 1.0)):
             return False
@@ -207,14 +271,20 @@ class DrawScheduler:
         self.last_image_wall_ms = (time.perf_counter() - self._job_t0) * 1e3
         self.images += 1
         self._shown = job
+        if job.renderer is self.renderer:
+            self.full_image_ms = self.last_image_ms / min(1.0, max(job.scale, 1e-3)) ** 2
         if job.live:
-            self._adapt(job.scale, self.last_image_ms)
+            self._adapt(job, self.last_image_ms)
         return True
 
-    def _adapt(self, scale: float, image_ms: float) -> None:
-        """Choose the live scale from the cost of an image drawn at `scale` (damped, within limits)."""
+    def _adapt(self, job: _Image, image_ms: float) -> None:
+        """Choose the live scale (of the renderer that drew `job`) from its cost (damped, within limits)."""
         if image_ms <= 0:
             return
-        factor = math.sqrt(self.interactive_ms / image_ms)
-        new = min(1.0, max(self.min_scale, scale * min(1.6, max(0.6, factor))))
-        self.interactive_scale = round(new, 3)
+        full = job.renderer is self.renderer
+        factor = math.sqrt((self.interactive_ms if full else self.lod_interactive_ms) / image_ms)
+        new = round(min(1.0, max(self.min_scale, job.scale * min(1.6, max(0.6, factor)))), 3)
+        if full:
+            self.interactive_scale = new
+        else:
+            self.lod_scale = new
