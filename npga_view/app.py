@@ -7,6 +7,7 @@ otherwise the last one is composited again, so the UI stays fluid while the avat
 from __future__ import annotations
 
 import ctypes
+import math
 import sys
 import time
 import warnings
@@ -44,6 +45,7 @@ from npga_view.rendering.scheduler import DrawScheduler
 from npga_view.state import MAX_SLIDERS, ViewerState
 
 SIDE_PANEL = 400  # logical pixels
+INSPECT_INFO_LIVE_S = 0.5  # seconds between the Inspect panel's figures while the view changes
 
 
 class ViewerApp:
@@ -111,6 +113,7 @@ class ViewerApp:
         self.playback: Playback | None = None
         self._colouring = None  # legend of the current Inspect colour mode
         self._inspect_info_due = False
+        self._inspect_info_t = -math.inf  # when the Inspect panel's figures were last computed
         self._last_t = time.perf_counter()
         self._fps_t: list[float] = []
         self.frames = 0
@@ -491,9 +494,14 @@ class ViewerApp:
             self.poses.presented(self.draws.shown_version)
         info.draw_scale, info.image_status = self.draws.scale, self.draws.status
         info.image_ms, info.draw_progress = self.draws.last_image_ms, self.draws.progress
-        if self._inspect_info_due and self.inspector is not None and self._posed is not None \
+        now = time.perf_counter()
+        # the Inspect panel's counts and histograms (~25 ms for the demo): at most twice a second while the view
+        # changes (playback brings a pose every frame), at once when it has settled
+        throttled = self._interacting() and now - self._inspect_info_t < INSPECT_INFO_LIVE_S
+        if self._inspect_info_due and not throttled and self.inspector is not None and self._posed is not None \
                 and len(self._posed) == len(self.avatar):
             self._inspect_info_due = False
+            self._inspect_info_t = now
             err = self.info.inspect.error if self.info.inspect is not None else None
             self.info.inspect = self.inspector.info(self.state.inspect, self._posed, self.poses.shown_code,
                                                     self._colouring, cam, self.renderer.drawn_mask(), NEAR)
