@@ -111,12 +111,23 @@ def test_live_images_come_from_the_merged_cloud_and_the_exact_one_from_all(lod, 
     sched.frame(moved, "rgb", content_version=1, interacting=True, now=0.15)
     assert sched.images == 2 and sched.shown_merged == lod.count and sched.shown_renderer is lod.renderer
     assert sched.status == "preview"
-    # a new pose while live (playback, a slider): in full again
-    lod.submit(2, avatar.pose(np.full(avatar.code_dim, 0.3, np.float32)))
-    sched.frame(moved, "rgb", content_version=2, interacting=True, now=0.2)
-    assert sched.images == 3 and sched.shown_merged == 0
+    # a new pose while live (a slider): its merge is waited for too, then drawn
+    pose2 = avatar.pose(np.full(avatar.code_dim, 0.3, np.float32))
+    lod.submit(2, pose2)
+    assert not sched.frame(moved, "rgb", content_version=2, interacting=True, now=0.2)
+    assert _wait_for(lambda: not lod.pending(2))
+    sched.frame(moved, "rgb", content_version=2, interacting=True, now=0.25)
+    assert sched.shown_version == 2 and sched.shown_merged == lod.count
+    # poses that change faster than they are merged (playback): the newest merged one newer than the screen's
+    lod.submit(3, avatar.pose(np.full(avatar.code_dim, 0.6, np.float32)))
+    assert _wait_for(lambda: lod.request(3) is not None)
+    pose4 = avatar.pose(np.full(avatar.code_dim, 0.9, np.float32))
+    lod.submit(4, pose4)
+    assert sched.frame(moved, "rgb", content_version=4, interacting=True, now=0.3)
+    assert sched.shown_version == 3 and sched.shown_merged == lod.count and sched.status == "preview"
     # input stops: full resolution from every Gaussian, the pixels of a plain draw
-    sched.frame(moved, "rgb", content_version=2, interacting=False, now=1.0)
+    full.set_gaussians(pose4)
+    sched.frame(moved, "rgb", content_version=4, interacting=False, now=1.0)
     assert sched.settled and sched.status == "exact" and sched.shown_merged == 0 and sched.scale == 1.0
     exact = _image(full)
     full.draw(moved)
@@ -125,6 +136,8 @@ def test_live_images_come_from_the_merged_cloud_and_the_exact_one_from_all(lod, 
 
 class _SlowMerge:
     """A `LiveDetail` whose merge of every version is on its way and never arrives."""
+
+    uploaded_version = -1
 
     def usable(self) -> bool:
         return True
@@ -149,7 +162,11 @@ def test_scheduler_waits_a_moment_for_a_merge_on_its_way(full, avatar):
     assert sched.images == 1
     assert sched.frame(moved, "rgb", content_version=1, interacting=True, now=1.25)  # waited long enough: in full
     assert sched.images == 2 and sched.shown_merged == 0
-    assert sched.frame(moved, "rgb", content_version=2, interacting=True, now=1.3)  # a new pose never waits
+    # a new pose waits as well, bounded from when the waiting began (poses may change faster than any merge)
+    assert not sched.frame(moved, "rgb", content_version=2, interacting=True, now=1.3)
+    assert not sched.frame(moved, "rgb", content_version=3, interacting=True, now=1.45)
+    assert sched.frame(moved, "rgb", content_version=4, interacting=True, now=1.55)
+    assert sched.shown_version == 4 and sched.shown_merged == 0
     # not live: the full-resolution image is drawn at once, nothing is waited for
     assert sched.frame(cam, "rgb", content_version=3, interacting=False, now=5.0)
     assert sched.shown_version == 3 and sched.scale == 1.0

@@ -6,13 +6,13 @@ from the full cloud. While the view changes the `DrawScheduler` draws them from 
 `clusters` Gaussians instead (`npga_core.model.lod`: moment matching over a fixed k-d grouping), with a
 second renderer of the same path; once input stops the full-resolution image is drawn from every Gaussian.
 
-Every cloud the window shows is `submit`ted with its content version (kept, not merged). The scheduler asks
-for the merged cloud of a version with `request(version)` when only the camera moves (an orbit: one merge
-serves every image of it); a pose that changes every image (playback, a slider drag) is drawn in full, since
-its merge would cost about as much as the draw it saves and arrive after the next pose. A daemon thread
-merges (a newer request replaces one not yet started) while the UI goes on (numpy releases the GIL in the
-heavy parts); `request` uploads a finished merge and returns the renderer, or None; `pending(version)` says
-that one is on its way, so the scheduler can wait a moment for it instead of drawing the full cloud.
+Every cloud the window shows is `submit`ted with its content version (kept, not merged yet). The scheduler
+asks for the merged cloud of a version with `request(version)`: it is uploaded if it has been merged, else its
+merge is queued (a newer request replaces one not yet started) for a daemon thread that merges while the UI
+goes on (numpy releases the GIL in the heavy parts). `pending(version)` says that one is on its way, so the
+scheduler can wait a moment for it instead of drawing the full cloud, and `uploaded_version` which merged pose
+the renderer holds (playback draws the newest one when poses come faster than merges). An orbit needs one
+merge for all its images.
 Clouds of fewer than `min_count` Gaussians are drawn in full (a merge would save little), as are inspection
 styles that draw every Gaussian ("points", "ellipsoids") and views with line overlays.
 """
@@ -83,12 +83,12 @@ class LiveDetail:
             return None
         with self._cond:
             done, self._done = self._done, None
-            if done is None and self._uploaded != version and self._working != version:
-                latest = self._latest
-                queued = self._request is not None and self._request[0] == version
-                if latest is not None and latest[0] == version and not queued:
-                    self._request = latest
-                    self._cond.notify()
+            latest = self._latest
+            started = {self._uploaded, self._working, done[0] if done is not None else -1,
+                       self._request[0] if self._request is not None else -1}
+            if latest is not None and latest[0] == version and version not in started:
+                self._request = latest
+                self._cond.notify()
         if done is not None:
             if self.renderer is None:
                 self.renderer = self._make_renderer()
@@ -98,6 +98,11 @@ class LiveDetail:
             self._thread = threading.Thread(target=self._run, name="npga-live-detail", daemon=True)
             self._thread.start()
         return self.renderer if self._uploaded == version and self.renderer is not None else None
+
+    @property
+    def uploaded_version(self) -> int:
+        """Content version of the merged cloud in the renderer (-1 if none); `request` uploads new ones."""
+        return self._uploaded if self.renderer is not None else -1
 
     @property
     def count(self) -> int:

@@ -15,13 +15,14 @@ interacting (dragging, moving sliders, playing). The scheduler then
 - once input stops, draws the current view at full resolution ("refining"), then stops drawing ("exact",
   if the cloud on screen is the exact pose, else "preview").
 
-While only the camera moves (an orbit), live images come from a level-of-detail cloud when one is handed in
-(`LiveDetail`: a few times fewer, merged Gaussians, drawn by a second renderer): on a software GL every splat
-costs vertex work at any resolution, so that is what makes live images cheap there. While the merge of the
-pose on screen is on its way (a thread, tens of ms) the scheduler waits for it up to `lod_wait_ms` instead of
-drawing the full cloud. Its live scale adapts to `lod_interactive_ms`. A pose that changes every image
-(playback, a slider), every full-resolution image, and everything where a full-resolution image of all
-Gaussians fits in the budget (a GPU) are drawn from all Gaussians.
+Live images come from a level-of-detail cloud when one is handed in (`LiveDetail`: at most 16k merged
+Gaussians, drawn by a second renderer) wherever a full-resolution image of every Gaussian does not fit in the
+budget (llvmpipe: every splat costs vertex work at any resolution; on a GPU nothing changes). While the merge of
+the current pose is on its way (a thread, 25-90 ms) the scheduler waits for it, at most `lod_wait_ms` since
+it began waiting; when poses change faster than they are merged (playback, a slider drag) it draws the newest
+merged pose that is newer than the one on screen (a preview; playback counts its frame as the one shown).
+The merged cloud's live scale adapts to `lod_interactive_ms`, and its slices leave the UI `target_fps`.
+Full-resolution images are always drawn from every Gaussian.
 
 An unfinished image is finished even if the view changed meanwhile (so complete images keep coming during a
 long drag), unless it is a full-resolution refinement that a new interaction makes pointless: that one is
@@ -70,7 +71,7 @@ class DrawScheduler:
         self.lod_interactive_ms = lod_interactive_ms
         self.lod_above_ms = budget_ms  # the merged cloud only where a full-resolution image costs more than this
         self.target_fps = 30.0  # the UI rate live images of the merged cloud leave room for (`frame_budget`)
-        self._lod_wait: tuple[int, float] | None = None  # (content version, since when) waited for its merge
+        self._lod_wait: float | None = None  # since when the view has waited for a merge (None: not waiting)
         self.budget_ms = budget_ms
         self.interactive_ms = interactive_ms
         self.min_scale = min_scale
@@ -209,23 +210,29 @@ class DrawScheduler:
             self._job = job = None
         if job is None:
             shown = self._shown
-            source, want = self.renderer, (self.interactive_scale if live else 1.0)
-            # the merged cloud when only the camera moves (its content is the one on screen already) and an image of
-            # the full cloud does not fit in the budget at full resolution (on a GPU it does: no merged cloud there)
-            steady = (shown is not None and shown.target[2] == content_version and self.full_image_ms is not None
-                      and self.full_image_ms > self.lod_above_ms)
-            merged = self.lod.request(content_version) if live and steady and self.lod is not None else None
+            source, want, draw = self.renderer, (self.interactive_scale if live else 1.0), target
+            # live images from the merged cloud where an image of the full cloud does not fit in the budget at full
+            # resolution (on a GPU it does: no merged cloud there)
+            costly = self.full_image_ms is not None and self.full_image_ms > self.lod_above_ms
+            lod = self.lod if live and costly and self.lod is not None and shown is not None else None
+            merged = lod.request(content_version) if lod is not None else None
             if merged is not None:
                 source, want = merged, self.lod_scale
+            elif lod is not None and shown.target[2] < lod.uploaded_version < content_version:
+                # the pose changes faster than it is merged (playback, a slider): the newest merged pose, newer
+                # than the one on screen, labelled a preview (its sequence frame is the one counted as shown)
+                source, want, draw = lod.renderer, self.lod_scale, (key, mode, lod.uploaded_version)
+                exact_content = False
             stale = shown is None or shown.target != target or shown.exact_content != exact_content
             # while live, a live image of this very target stays (the adapted scale moving a little is no reason
             # to draw it again: that only took the cores from the exact pose being computed)
             if stale or (shown.scale < want and not (live and shown.live)):
-                if live and steady and merged is None and self._wait_for_merge(content_version, now):
+                if lod is not None and source is self.renderer and self._wait_for_merge(content_version, now):
                     return False  # the merged cloud of this pose is nearly there: cheaper than the full one
                 if shown is None:  # first image: as fast as possible, refined right after
-                    want = self.lod_scale if merged is not None else self.interactive_scale
-                self._start(camera, mode, _Image(target, want, exact_content, live=live or shown is None,
+                    want = self.interactive_scale
+                self._lod_wait = None
+                self._start(camera, mode, _Image(draw, want, exact_content, live=live or shown is None,
                                                  renderer=source), now)
         if self._job is None:
             return False
@@ -233,13 +240,14 @@ class DrawScheduler:
         return self._continue(self.frame_budget(live, merged), frame_start)
 
     def _wait_for_merge(self, version: int, now: float) -> bool:
-        """Whether to wait for the merged cloud of `version` rather than draw the full one (up to `lod_wait_ms`
-        from the first frame that wanted it)."""
+        """Whether to wait for the merged cloud of `version` rather than draw the full one: while its merge is on
+        its way, up to `lod_wait_ms` since the first frame that waited (for any version: poses that change
+        faster than they are merged must not keep the view waiting)."""
         if self.lod is None or not self.lod.usable() or not self.lod.pending(version):
             return False
-        if self._lod_wait is None or self._lod_wait[0] != version:
-            self._lod_wait = (version, now)
-        return (now - self._lod_wait[1]) * 1e3 < self.lod_wait_ms
+        if self._lod_wait is None:
+            self._lod_wait = now
+        return (now - self._lod_wait) * 1e3 < self.lod_wait_ms
 
     def frame_budget(self, live: bool, merged: bool = False) -> float:
         """Milliseconds of drawing per UI frame: `budget_ms` while the view changes, and for images of the merged
