@@ -3,8 +3,9 @@
 Loaded before the test modules are collected, it replaces `npga_view.rendering.renderer.SplatRenderer` by
 `SplatRenderer41` (a subclass, created from the original before the swap), so every
 `from npga_view.rendering.renderer import SplatRenderer` in tests/test_renderer.py, test_picking.py,
-test_budgeted_draw.py and test_knn_lines.py builds the 4.1 path. tests/test_gl41.py runs them this way under
-Mesa's 4.1 override (MESA_GL_VERSION_OVERRIDE=4.1FC); the report header names the context's version.
+test_budgeted_draw.py, test_live_detail.py and test_knn_lines.py builds the 4.1 path. tests/test_gl41.py runs
+them this way under Mesa's 4.1 override (MESA_GL_VERSION_OVERRIDE=4.1FC); the report header names the
+context's version.
 """
 
 from __future__ import annotations

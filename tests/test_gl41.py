@@ -186,10 +186,10 @@ def test_gl41_shaders_use_nothing_newer():
 
 
 def test_renderer_suites_under_mesa_gl41():
-    """tests/test_renderer.py, test_picking.py, test_budgeted_draw.py and test_knn_lines.py against the 4.1 path
-    in a real 4.1 core context (the OSMesa fallback test asks for a 4.5 context: left out)."""
+    """tests/test_renderer.py, test_picking.py, test_budgeted_draw.py, test_live_detail.py and test_knn_lines.py
+    against the 4.1 path in a real 4.1 core context (the OSMesa fallback test asks for a 4.5 context: left out)."""
     modules = ["tests/test_renderer.py", "tests/test_picking.py", "tests/test_budgeted_draw.py",
-               "tests/test_knn_lines.py"]
+               "tests/test_live_detail.py", "tests/test_knn_lines.py"]
     r = subprocess.run([sys.executable, "-m", "pytest", "-p", "no:cacheprovider", "-p", "gl41_swap", *modules,
                         "-k", "not osmesa"], cwd=ROOT, env=_env(), capture_output=True, text=True, timeout=900)
     assert r.returncode == 0, r.stdout[-4000:] + r.stderr[-2000:]

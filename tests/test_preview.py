@@ -126,3 +126,31 @@ def test_engine_previews_then_refines_to_the_exact_pose(small_npga, tmp_path):
             eng.poll()
             time.sleep(0.02)
         assert eng.status.get("preview_model") == "cached"
+
+
+def test_refinement_waits_for_a_pause_without_newer_requests(small_npga, tmp_path):
+    """The exact refinement of a preview starts only after `refine_delay_ms` without a newer request (the window's
+    image of the preview gets the cores first): previews of a drag in between are answered, each refinement
+    dropped for the next, and only the last one's exact pose comes."""
+    a = read_avatar(small_npga)
+    opts = {"instant_ms": 0.0, "probes": 64, "fit_codes": 0, "cache_dir": str(tmp_path), "refine_delay_ms": 1500.0}
+    with PoseEngine(str(small_npga), len(a), a.cloud.sh.shape[1], a.cloud.latent_dim, threads=1, **opts) as eng:
+        eng.request(a.neutral_code(), mode="exact")
+        eng.wait().release()
+        rng = np.random.default_rng(9)
+        ids = []
+        for _ in range(3):  # a drag: a new code well within the pause each time
+            ids.append(eng.request(a.expression.sample(rng), mode="preview"))
+            r = eng.wait()
+            assert r is not None and r.request_id == ids[-1] and r.preview
+            r.release()
+            t0 = time.monotonic()
+            while time.monotonic() - t0 < 0.2:  # no exact pose during the pause
+                r = eng.poll()
+                assert r is None or r.preview, "an exact pose came before the pause was over"
+                if r is not None:
+                    r.release()
+                time.sleep(0.01)
+        r = eng.wait(exact=True)
+        assert r is not None and r.request_id == ids[-1] and not r.preview
+        r.release()

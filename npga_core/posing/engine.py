@@ -92,6 +92,9 @@ class EngineOptions:
     cache_mb: float = 256.0  # first-layer cache limit for first_layer="auto"
     kernel: str = "auto"  # FastPoser kernel: "auto", "onednn" or "aten"
     chunk: int | None = None  # rows per chunk (None: FastPoser's default for its kernel and device)
+    # the exact refinement of a preview starts after this pause without a newer request: the window's image of
+    # the preview gets the cores first, and a drag's next preview usually comes within it (#14, PERFORMANCE.md)
+    refine_delay_ms: float = 120.0
 
 
 @dataclass
@@ -198,6 +201,7 @@ class _Worker:
         self.preview_ms: float | None = None
         self.want: tuple | None = None
         self.refine: tuple | None = None
+        self._refine_at = 0.0  # when the refinement of the last preview may start (refine_delay_ms)
         self.status: dict = {}
         threads = max(1, threads)
         if not FastPoser.supported(self.avatar):
@@ -242,9 +246,9 @@ class _Worker:
             self._send_status(bake=None, bake_id=msg[1])
         return True
 
-    def _drain(self, block: bool) -> bool:
+    def _drain(self, block: bool, timeout: float = 0.5) -> bool:
         try:
-            msg = self.req_q.get(timeout=0.5) if block else self.req_q.get_nowait()
+            msg = self.req_q.get(timeout=timeout) if block else self.req_q.get_nowait()
         except queue.Empty:
             return True
         if not self._handle(msg):
@@ -275,6 +279,11 @@ class _Worker:
                 else:
                     self._answer_pose(msg[1], msg[2], msg[3])
             elif self.refine is not None:
+                pause = self._refine_at - time.perf_counter()
+                if pause > 0:  # a newer request within the pause replaces the refinement
+                    if not self._drain(block=True, timeout=pause):
+                        return
+                    continue
                 req_id, z = self.refine
                 if self._exact(req_id, z, cancellable=True):
                     self.refine = None
@@ -309,6 +318,7 @@ class _Worker:
             timings["pose_total"] = self.preview_ms = (time.perf_counter() - t0) * 1e3
             self._publish(req_id, slot, z, timings, preview=True)
             self.refine = (req_id, z)
+            self._refine_at = time.perf_counter() + self.opts.refine_delay_ms / 1e3
         else:
             self._exact(req_id, z, cancellable=False)
 

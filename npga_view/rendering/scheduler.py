@@ -251,13 +251,15 @@ class DrawScheduler:
 
     def frame_budget(self, live: bool, merged: bool = False) -> float:
         """Milliseconds of drawing per UI frame: `budget_ms` while the view changes, and for images of the merged
-        cloud (cheap enough) only what keeps the UI at `target_fps` beside the UI's own time (at least a third of
-        the budget); while nothing changes, a refinement may take as long as the rest of the UI frame (so that it
-        gets at least half of the machine), never less than the budget and at most 4 times it."""
+        cloud (cheap enough) only what keeps the UI at `target_fps` beside the UI's own time, unless that leaves
+        less than a third of the budget (the UI cannot reach that rate anyway: then the whole budget); while
+        nothing changes, a refinement may take as long as the rest of the UI frame (so that it gets at least half
+        of the machine), never less than the budget and at most 4 times it."""
         if not live:
             return max(self.budget_ms, min(self.ui_ms, 4 * self.budget_ms))
-        if merged:
-            return min(self.budget_ms, max(self.budget_ms / 3, 1e3 / self.target_fps - self.ui_ms))
+        left = 1e3 / self.target_fps - self.ui_ms
+        if merged and left >= self.budget_ms / 3:  # (when the UI alone is too slow for it, the whole budget)
+            return min(self.budget_ms, left)
         return self.budget_ms
 
     def _start(self, camera: Camera, mode: str, image: _Image, now: float) -> None:
