@@ -93,6 +93,7 @@ class DrawScheduler:
         #: drawing time of a full-resolution image of every Gaussian, measured (or from a reduced one, / scale^2)
         self.full_image_ms: float | None = None
         self.last_image_wall_ms = 0.0  # wall time from its start to its end (spans UI frames)
+        self._live_wall_ms: list[float | None] = [None, None]  # that of the last live image: full cloud, merged
         self.images = 0  # finished images so far
 
     # ----------------------------------------------------------------------------------------- state
@@ -227,7 +228,8 @@ class DrawScheduler:
             # while live, a live image of this very target stays (the adapted scale moving a little is no reason
             # to draw it again: that only took the cores from the exact pose being computed)
             if stale or (shown.scale < want and not (live and shown.live)):
-                if lod is not None and source is self.renderer and self._wait_for_merge(content_version, now):
+                steady = shown is not None and shown.target[2] == content_version
+                if lod is not None and source is self.renderer and self._wait_for_merge(content_version, now, steady):
                     return False  # the merged cloud of this pose is nearly there: cheaper than the full one
                 if shown is None:  # first image: as fast as possible, refined right after
                     want = self.interactive_scale
@@ -239,15 +241,22 @@ class DrawScheduler:
         merged = self._job.renderer is not self.renderer
         return self._continue(self.frame_budget(live, merged), frame_start)
 
-    def _wait_for_merge(self, version: int, now: float) -> bool:
+    def _wait_for_merge(self, version: int, now: float, steady: bool) -> bool:
         """Whether to wait for the merged cloud of `version` rather than draw the full one: while its merge is on
         its way, up to `lod_wait_ms` since the first frame that waited (for any version: poses that change
-        faster than they are merged must not keep the view waiting)."""
+        faster than they are merged must not keep the view waiting). For a new pose (one image, not an orbit)
+        only as long as the merge and its image come sooner than a live image of the full cloud would (a large
+        avatar's merge can take longer than that)."""
         if self.lod is None or not self.lod.usable() or not self.lod.pending(version):
             return False
+        bound = self.lod_wait_ms
+        if not steady and self._live_wall_ms[0] is not None and self._live_wall_ms[1] is not None:
+            bound = min(bound, self._live_wall_ms[0] - self._live_wall_ms[1])
+            if self.lod.merge_ms > bound:
+                return False
         if self._lod_wait is None:
             self._lod_wait = now
-        return (now - self._lod_wait) * 1e3 < self.lod_wait_ms
+        return (now - self._lod_wait) * 1e3 < bound
 
     def frame_budget(self, live: bool, merged: bool = False) -> float:
         """Milliseconds of drawing per UI frame: `budget_ms` while the view changes, and for images of the merged
@@ -285,6 +294,7 @@ class DrawScheduler:
             self.full_image_ms = self.last_image_ms / min(1.0, max(job.scale, 1e-3)) ** 2
         if job.live:
             self._adapt(job, self.last_image_ms)
+            self._live_wall_ms[0 if job.renderer is self.renderer else 1] = self.last_image_wall_ms
         return True
 
     def _adapt(self, job: _Image, image_ms: float) -> None:
