@@ -97,6 +97,7 @@ class ViewerApp:
         self.idle_wait_s = 0.0 if self.legacy else 1.0 / 30.0  # see step(); the legacy loop spins as before
         self._was_quiet = False
         self.state = ViewerState()
+        self.state.merged_live = level_of_detail
         self.info = AppInfo(renderer_path=self.renderer.path)
         # the screen-space CNN (on the dynamics' GPU when one is asked for) and latent views, on settled images
         cnn_device = device if device.startswith("cuda") else "cpu"
@@ -483,6 +484,10 @@ class ViewerApp:
     def _draw_splats(self) -> None:
         cam = self.current_camera()
         info = self.info
+        self.lod.enabled = self.state.merged_live and not self.legacy
+        if self.lod.error:  # a merge failed: say so and draw every Gaussian from now on
+            self.state.report(self.lod.error)
+            self.lod.error, self.state.merged_live = None, False
         exact = not (info.preview or info.canonical or info.interpolated)
         if self.draws.frame(cam, self.state.mode, self.content_version, self._interacting(), exact_content=exact):
             t = self.draws.shown_renderer.last_timings

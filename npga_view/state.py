@@ -74,6 +74,7 @@ class ViewerState:
     background: tuple[float, float, float] = (0.0, 0.0, 0.0)
     show_stats: bool = True  # the statistics overlay over the splat view
     use_cnn: bool = True  # show the CNN-refined image (avatars with a CNN), else the raw splats
+    merged_live: bool = True  # live images (drag, slider, playback) from the merged level-of-detail cloud
     latent_view: str = "off"  # "off" | "pca" (PCA of h as RGB) | "channel" (h[latent_channel]): the latent image
     latent_channel: int = 0
     sliders: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))  # one per PCA component, in std

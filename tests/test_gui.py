@@ -595,3 +595,18 @@ def test_orbit_draws_live_images_from_the_merged_cloud_and_the_exact_one_from_al
     app.step()
     assert app.info.merged_splats == 0 and app.info.image_status == "exact" and app.draws.scale == 1.0
     assert app.draws.shown_renderer is app.renderer
+
+
+def test_merged_cloud_can_be_switched_off_in_the_view_panel(app, avatar_path):
+    """The View panel's "Merged cloud while moving": off, an orbit's live images come from every Gaussian."""
+    assert app.open_avatar(avatar_path)
+    app.lod.min_count = 0
+    settle(app)
+    assert app.state.merged_live
+    click(app, "merged_live")
+    assert not app.state.merged_live
+    for _ in range(60):
+        app.state.camera.orbit(2.0, 0.0)
+        app.step()
+        assert app.info.merged_splats == 0 and app.draws.shown_renderer is app.renderer
+    assert not app.lod.enabled

@@ -185,3 +185,18 @@ def test_no_merged_cloud_where_a_full_image_fits_in_the_budget(lod, full, avatar
         t += 0.1
     assert sched.images == 6 and sched.shown_merged == 0 and not lod.pending(1) and lod.renderer is None
     assert sched.frame(cam, "rgb", 1, False, now=t + 1) and sched.settled
+
+
+def test_a_failed_merge_is_reported_not_waited_for(lod, avatar, monkeypatch):
+    """A merge that raises leaves an error to show and nothing pending (a dead thread would keep the view waiting)."""
+    import npga_view.rendering.live_detail as live_detail
+
+    class Broken:
+        def __init__(self, *a, **k):
+            raise RuntimeError("no memory for the grouping")
+
+    monkeypatch.setattr(live_detail, "LevelOfDetail", Broken)
+    lod.submit(1, avatar.pose())
+    assert lod.request(1) is None
+    assert _wait_for(lambda: lod.error is not None)
+    assert "no memory for the grouping" in lod.error and not lod.pending(1)

@@ -56,7 +56,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--no-render", action="store_true", help="skip OpenGL (no draw timings, no PSNR)")
     p.add_argument("--window", action="store_true",
                    help="measure the real window on its pixels instead (first pixels, slider, orbit, playback; "
-                        "frame budgeting on and off; --gaussians sizes besides the demo; Xvfb if no DISPLAY)")
+                        "budgeting with and without the merged live cloud, and off; --gaussians sizes besides the "
+                        "demo; Xvfb if no DISPLAY)")
     p.add_argument("--window-seconds", type=float, default=6.0, help="length of each window run (default 6)")
 
 

@@ -44,6 +44,12 @@ def draw(state: ViewerState, info: AppInfo) -> None:
     _, bg = imgui.color_edit3("Background", list(state.background))
     state.background = (float(bg[0]), float(bg[1]), float(bg[2]))
     _, state.show_stats = imgui.checkbox("Statistics overlay", state.show_stats)
+    _, state.merged_live = imgui.checkbox("Merged cloud while moving", state.merged_live)
+    if imgui.is_item_hovered():
+        imgui.set_tooltip("While you drag, move a slider or play, draw the live images from at most 16k merged\n"
+                          "Gaussians where a full image does not fit in the frame (software GL); the image\n"
+                          "after you stop is always drawn from every Gaussian. Off: every Gaussian, always.")
+    remember(info, "merged_live")
     _refinement(state, info)
     if imgui.button("Screenshot"):
         state.actions.append(("screenshot", None))

@@ -137,7 +137,7 @@ class LiveDetail:
                 if grouping is None or grouping.count != len(posed):
                     grouping = LevelOfDetail(posed.means, self.clusters)
                 merged = grouping.merge(posed)
-            except (ValueError, FloatingPointError, MemoryError) as e:
+            except Exception as e:  # noqa: BLE001 (a thread that died would leave the view waiting for it)
                 with self._cond:
                     self.error, self._working = f"level of detail: {e}", -1
                 continue
