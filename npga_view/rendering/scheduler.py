@@ -87,6 +87,8 @@ class DrawScheduler:
         self._last_change = -math.inf  # when the camera or mode last changed
         self._frame_end: float | None = None
         self.ui_ms = 0.0  # the UI frame's own time (everything but splat drawing), smoothed
+        self.over_ms = 0.0  # drawing beyond the budget given (the last slice, waiting for queued GL work), smoothed
+        self._given_ms: float | None = None
         self._outside_ms = 0.0  # drawing since the last frame() done elsewhere (`drew_outside`)
         self._live = False  # the last frame was an interaction (see `idle`)
         self.last_image_ms = 0.0  # drawing time (pre-pass + slices) of the last finished image
@@ -176,10 +178,14 @@ class DrawScheduler:
             gap = max(0.0, (frame_start - self._frame_end) * 1e3 - self._outside_ms)
             self.ui_ms = gap if not self.ui_ms else 0.8 * self.ui_ms + 0.2 * gap
         self._outside_ms = 0.0
+        self._given_ms = None
         try:
             return self._frame(camera, mode, content_version, interacting, exact_content, now, frame_start)
         finally:
             self._frame_end = time.perf_counter()
+            if self._given_ms is not None and not math.isinf(self._given_ms):
+                over = max(0.0, (self._frame_end - frame_start) * 1e3 - self._given_ms)
+                self.over_ms = 0.8 * self.over_ms + 0.2 * over
 
     def drew_outside(self, ms: float) -> None:
         """Drawing done elsewhere in this UI frame within `frame_budget` (the refinement's latent pass): not
@@ -239,7 +245,8 @@ class DrawScheduler:
         if self._job is None:
             return False
         merged = self._job.renderer is not self.renderer
-        return self._continue(self.frame_budget(live, merged), frame_start)
+        self._given_ms = self.frame_budget(live, merged)
+        return self._continue(self._given_ms, frame_start)
 
     def _wait_for_merge(self, version: int, now: float, steady: bool) -> bool:
         """Whether to wait for the merged cloud of `version` rather than draw the full one: while its merge is on
@@ -260,13 +267,14 @@ class DrawScheduler:
 
     def frame_budget(self, live: bool, merged: bool = False) -> float:
         """Milliseconds of drawing per UI frame: `budget_ms` while the view changes, and for images of the merged
-        cloud (cheap enough) only what keeps the UI at `target_fps` beside the UI's own time, unless that leaves
+        cloud (cheap enough) only what keeps the UI at `target_fps` beside the UI's own time and the usual
+        overshoot (the last slice, GL work queued by the window), unless that leaves
         less than a third of the budget (the UI cannot reach that rate anyway: then the whole budget); while
         nothing changes, a refinement may take as long as the rest of the UI frame (so that it gets at least half
         of the machine), never less than the budget and at most 4 times it."""
         if not live:
             return max(self.budget_ms, min(self.ui_ms, 4 * self.budget_ms))
-        left = 1e3 / self.target_fps - self.ui_ms
+        left = 1e3 / self.target_fps - self.ui_ms - self.over_ms
         if merged and left >= self.budget_ms / 3:  # (when the UI alone is too slow for it, the whole budget)
             return min(self.budget_ms, left)
         return self.budget_ms
