@@ -80,6 +80,14 @@ class _Watcher:
         return None
 
 
+def _input_event() -> None:
+    """Wake the window's loop as a real input event would (it may be waiting up to 1/30 s for input when idle;
+    the bench changes the state directly, which sends no event)."""
+    from npga_view.imgui_glfw import glfw
+
+    glfw.post_empty_event()
+
+
 def _exact(app) -> bool:
     eng = app.engine
     return (app.draws.settled and not app.info.preview and not app.info.canonical
@@ -140,6 +148,7 @@ def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, sec
             w.step()
             app.state.follow_sequence = False
             app.state.sliders[0] += 1.0 if k % 2 == 0 else -1.0
+            _input_event()  # as the mouse event of a real slider move does, wake a window waiting for input
             t0 = time.perf_counter()
             changed = None
             while time.perf_counter() - t0 < 60:
