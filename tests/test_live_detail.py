@@ -111,7 +111,10 @@ def test_live_images_come_from_the_merged_cloud_and_the_exact_one_from_all(lod, 
     sched.frame(moved, "rgb", content_version=1, interacting=True, now=0.15)
     assert sched.images == 2 and sched.shown_merged == lod.count and sched.shown_renderer is lod.renderer
     assert sched.status == "preview"
-    # a new pose while live (a slider): its merge is waited for too, then drawn
+    # a new pose while live (a slider): its merge is waited for too, then drawn, where merging is quicker than a
+    # live image of the full cloud (as for the demo on llvmpipe; this small cloud draws in a few ms)
+    sched._live_wall_ms = [150.0, 20.0]  # (wall ms of the last full and merged live images)
+    lod.merge_ms = 30.0
     pose2 = avatar.pose(np.full(avatar.code_dim, 0.3, np.float32))
     lod.submit(2, pose2)
     assert not sched.frame(moved, "rgb", content_version=2, interacting=True, now=0.2)
@@ -200,3 +203,19 @@ def test_a_failed_merge_is_reported_not_waited_for(lod, avatar, monkeypatch):
     assert lod.request(1) is None
     assert _wait_for(lambda: lod.error is not None)
     assert "no memory for the grouping" in lod.error and not lod.pending(1)
+
+
+def test_a_new_pose_is_not_waited_for_when_merging_is_slower_than_drawing(lod, full, avatar):
+    """A large avatar's merge can take longer than a live image of all its Gaussians: then a new pose is drawn in
+    full at once (an orbit, one merge for many images, still waits)."""
+    full.use_points = True
+    sched = DrawScheduler(full, budget_ms=math.inf, interactive_ms=1e-3, settle_s=0.0, lod=lod)
+    sched.lod_above_ms = 0.0
+    cam = frame_points(avatar.pose().means, 160, 140)
+    lod.submit(1, avatar.pose())
+    assert sched.frame(cam, "rgb", content_version=1, interacting=True, now=0.0)
+    sched._live_wall_ms = [150.0, 20.0]
+    lod.merge_ms = 400.0  # the last merge took longer than a full live image
+    lod.submit(2, avatar.pose(np.full(avatar.code_dim, 0.3, np.float32)))
+    assert sched.frame(cam, "rgb", content_version=2, interacting=True, now=0.1)
+    assert sched.shown_version == 2 and sched.shown_merged == 0

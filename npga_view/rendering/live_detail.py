@@ -56,7 +56,7 @@ class LiveDetail:
     # ------------------------------------------------------------------------------------------ input
     def submit(self, version: int, posed: PosedGaussians) -> None:
         """The window shows `posed` as content `version` (merged when `request`ed)."""
-        self._latest = (version, posed) if self.enabled and len(posed) >= self.min_count else None
+        self._latest = (version, posed) if len(posed) >= self.min_count else None
 
     def reset(self) -> None:
         """The avatar changed: group its Gaussians anew with the next cloud."""

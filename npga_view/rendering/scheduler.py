@@ -284,7 +284,7 @@ class DrawScheduler:
             image.renderer = self.renderer
         image.renderer.begin_draw(scaled_camera(camera, image.scale), mode)
         self._job = image
-        self._job_t0 = now
+        self._job_t0 = time.perf_counter()  # (wall time; `now` may be a test's clock)
 
     def _continue(self, budget_ms: float, frame_start: float) -> bool:
         """Draw until `budget_ms` after `frame_start` is spent (the pre-pass of a new image counts)."""
