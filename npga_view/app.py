@@ -84,9 +84,9 @@ class ViewerApp:
         imgui.backends.opengl3_init("#version 330")
         self.ctx = window_context()
         self.renderer = create_renderer(self.ctx, 64, 64)  # the 4.3 path, or the 4.1 one (macOS)
-        # live images from a merged level-of-detail cloud (a second renderer, merged in a thread)
-        self.lod = LiveDetail(lambda: create_renderer(self.ctx, 64, 64), self.renderer,
-                              enabled=frame_budget_ms is not None and level_of_detail)
+        # live images from a merged level-of-detail cloud (a second renderer, merged in a thread); on while
+        # state.merged_live (set each frame in _draw_splats)
+        self.lod = LiveDetail(lambda: create_renderer(self.ctx, 64, 64), self.renderer)
         # frame-budgeted, adaptive-resolution drawing; frame_budget_ms=None draws every change at once in full
         self.draws = DrawScheduler(self.renderer, budget_ms=frame_budget_ms or 25.0,
                                    enabled=frame_budget_ms is not None, lod=self.lod)
@@ -489,7 +489,8 @@ class ViewerApp:
             self.state.report(self.lod.error)
             self.lod.error, self.state.merged_live = None, False
         exact = not (info.preview or info.canonical or info.interpolated)
-        if self.draws.frame(cam, self.state.mode, self.content_version, self._interacting(), exact_content=exact):
+        interacting = self._interacting()
+        if self.draws.frame(cam, self.state.mode, self.content_version, interacting, exact_content=exact):
             t = self.draws.shown_renderer.last_timings
             info.timings.update({k: t[k] for k in ("sort", "upload", "preprocess", "draw") if k in t})
             info.merged_splats = self.draws.shown_merged
@@ -502,7 +503,7 @@ class ViewerApp:
         now = time.perf_counter()
         # the Inspect panel's counts and histograms (~25 ms for the demo): at most twice a second while the view
         # changes (playback brings a pose every frame), at once when it has settled
-        throttled = self._interacting() and now - self._inspect_info_t < INSPECT_INFO_LIVE_S
+        throttled = interacting and now - self._inspect_info_t < INSPECT_INFO_LIVE_S
         if self._inspect_info_due and not throttled and self.inspector is not None and self._posed is not None \
                 and len(self._posed) == len(self.avatar):
             self._inspect_info_due = False

@@ -28,7 +28,7 @@ from __future__ import annotations
 import numpy as np
 from scipy import sparse
 
-from npga_core.model.gaussians import PosedGaussians
+from npga_core.model.gaussians import PosedGaussians, covariances
 from npga_core.model.rotations import quat_from_matrix
 
 #: how much the spread of a cluster's centres adds to its covariance (1 would be the moments): a Gaussian is
@@ -71,24 +71,6 @@ def kd_clusters(points: np.ndarray, per_cluster: int) -> np.ndarray:
     for k, (lo, hi) in enumerate(done):
         labels[order[lo:hi]] = k
     return labels
-
-
-def _covariance6(quats: np.ndarray, scales: np.ndarray) -> np.ndarray:
-    """The 6 entries (xx, yy, zz, xy, xz, yz) of R diag(s^2) R^T (N, 6) from (w, x, y, z) quaternions and scales."""
-    q = quats / np.maximum(np.linalg.norm(quats, axis=1, keepdims=True), 1e-12)
-    w, x, y, z = q.T
-    r = (
-        (1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
-        (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
-        (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)),
-    )
-    s2 = scales * scales
-    rs = [[r[i][k] * s2[:, k] for k in range(3)] for i in range(3)]
-
-    def entry(i: int, j: int) -> np.ndarray:
-        return rs[i][0] * r[j][0] + rs[i][1] * r[j][1] + rs[i][2] * r[j][2]
-
-    return np.stack([entry(0, 0), entry(1, 1), entry(2, 2), entry(0, 1), entry(0, 2), entry(1, 2)], axis=1)
 
 
 def _unit(v: np.ndarray) -> np.ndarray:
@@ -199,7 +181,7 @@ class LevelOfDetail:
         d = means - ref[self._labels]
         dd = np.stack([d[:, 0] * d[:, 0], d[:, 1] * d[:, 1], d[:, 2] * d[:, 2], d[:, 0] * d[:, 1],
                        d[:, 0] * d[:, 2], d[:, 1] * d[:, 2]], axis=1)
-        own = _covariance6(np.asarray(posed.quats, np.float32), scales.astype(np.float32))
+        own = covariances(posed.quats, scales)[[0, 3, 5, 1, 2, 4]].T  # as xx, yy, zz, xy, xz, yz
         m = mean_of @ np.concatenate([d, own + SPREAD * dd], axis=1)
         dm = m[:, :3]
         cov = m[:, 3:] - SPREAD * np.stack([dm[:, 0] * dm[:, 0], dm[:, 1] * dm[:, 1], dm[:, 2] * dm[:, 2],

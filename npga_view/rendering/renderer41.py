@@ -28,7 +28,7 @@ import moderngl
 import numpy as np
 
 from npga_core.camera.cameras import Camera
-from npga_core.model.gaussians import SH_C0, PosedGaussians, sh_degree_from_count
+from npga_core.model.gaussians import SH_C0, PosedGaussians, covariances, sh_degree_from_count
 from npga_core.model.sh import SH_C1, SH_C2, SH_C3
 from npga_view.rendering.lines import pack_rgba8
 from npga_view.rendering.renderer import NEAR, SplatRenderer, _mat4_uniform, camera_key, load_shader
@@ -42,24 +42,6 @@ MIN_ALPHA = 1.0 / 255.0
 def load_shader41(name: str, defines: dict[str, object] | None = None) -> str:
     """The 4.1 twin `shaders/gl41_<name>` of a shader of the 4.3 path (includes resolved as for the 4.3 path)."""
     return load_shader("gl41_" + name, defines)
-
-
-def covariances(quats: np.ndarray, scales: np.ndarray) -> np.ndarray:
-    """The 3D covariances R S S^T R^T as (6, N) float32 rows xx, xy, xz, yy, yz, zz, from (w, x, y, z)
-    quaternions (normalised here, as 3DGS does) and scales, as the pre-pass shader builds them."""
-    q = np.asarray(quats, np.float32).reshape(-1, 4)
-    s = np.asarray(scales, np.float32).reshape(-1, 3)
-    with np.errstate(invalid="ignore", divide="ignore"):
-        q = q / np.sqrt(np.einsum("ni,ni->n", q, q))[:, None]
-    w, x, y, z = (np.ascontiguousarray(q[:, i]) for i in range(4))
-    r = ((1 - 2 * (y * y + z * z), 2 * (x * y - w * z), 2 * (x * z + w * y)),
-         (2 * (x * y + w * z), 1 - 2 * (x * x + z * z), 2 * (y * z - w * x)),
-         (2 * (x * z - w * y), 2 * (y * z + w * x), 1 - 2 * (x * x + y * y)))
-    s2 = [s[:, i] * s[:, i] for i in range(3)]
-    out = np.empty((6, len(q)), np.float32)
-    for row, (i, j) in enumerate(((0, 0), (0, 1), (0, 2), (1, 1), (1, 2), (2, 2))):
-        out[row] = r[i][0] * r[j][0] * s2[0] + r[i][1] * r[j][1] * s2[1] + r[i][2] * r[j][2] * s2[2]
-    return out
 
 
 class Columns:
