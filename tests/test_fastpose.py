@@ -19,10 +19,10 @@ KERNELS = ["aten", pytest.param("onednn", marks=pytest.mark.skipif(not onednn_av
 
 
 def _reference_rows(avatar, z: np.ndarray) -> torch.Tensor:
-    """Combined offset rows (F then G) from the plain forward passes."""
-    t = avatar._tensors()
-    nets = avatar.dynamics.networks()
-    return torch.cat([net(t["means"], t["features"], torch.from_numpy(z)) for net in nets.values()], dim=1)
+    """Combined offset rows (each attribute's offset summed over the networks, in attribute order) from the plain
+    forward passes."""
+    totals = avatar.offsets_reference(z).totals()
+    return torch.cat(list(totals.values()), dim=1)
 
 
 def _assert_posed_close(dest: dict, ref, rtol: float = 1e-4, atol: float = 2e-6) -> None:
@@ -163,7 +163,7 @@ def test_relu_chain_with_large_biases_matches_float64(kernel):
     t = a._tensors()
     got = poser.offsets(z).double()
     mu, f, zz = t["means"].double(), t["features"].double(), torch.from_numpy(z).double()
-    ref = torch.cat([copy.deepcopy(net).double()(mu, f, zz) for net in a.dynamics.networks().values()], 1).detach()
+    ref = torch.cat(list(copy.deepcopy(a.dynamics).double().offsets(mu, f, zz).totals().values()), 1).detach()
     scale = ref.abs().amax(0).clamp_min(1e-12)
     assert float(((got - ref).abs().amax(0) / scale).max()) < 1e-4
 

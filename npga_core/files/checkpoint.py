@@ -1,4 +1,4 @@
-"""The `.npga` checkpoint format: one file, a JSON header and raw little-endian arrays, memory-mapped.
+"""The `.npga` checkpoint format: one file, a JSON header and raw little-endian arrays (read, never mapped).
 
 Layout (see docs/FORMAT.md for every tensor):
 
@@ -21,22 +21,32 @@ from pathlib import Path
 from typing import Any
 
 import numpy as np
-import torch
 
 from npga_core import __version__
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
+from npga_core.files.dynamics_header import (
+    HeaderError,
+    build_cnn,
+    build_dynamics,
+    check_dynamics,
+    cnn_section,
+    cnn_tensors,
+    dynamics_section,
+    dynamics_tensors,
+)
 from npga_core.files.untrusted import MAX_JSON_DEPTH, json_depth, open_regular, regular_file
 from npga_core.model.avatar import Avatar
-from npga_core.model.cnn import CNNConfig, ScreenCNN
-from npga_core.model.dynamics import ConditionedMLP, Dynamics, MLPConfig
+from npga_core.model.cnn import CNNConfig
 from npga_core.model.expression import ExpressionSpace
 from npga_core.model.gaussians import GaussianCloud, sh_coeff_count
 
 MAGIC = b"\x89NPGA\r\n\x1a"
-FORMAT_VERSION = 1
+#: The newest version this code reads and writes; a file is written in the oldest version that holds it.
+FORMAT_VERSION = 2
 ALIGN = 64
 MAX_HEADER_BYTES = 64 * 1024 * 1024
+MAX_PARAMETER = 1e8  # largest magnitude of a network weight, input normalisation or expression value
 _DTYPES = {"float32": np.dtype("<f4"), "int16": np.dtype("<i2")}
 
 Spec = dict[str, tuple[str, tuple[int, ...]]]
@@ -66,23 +76,14 @@ def expected_tensors(header: dict) -> Spec:
         spec["gaussians.latent"] = ("float32", (n, h))
     if g.get("part_names"):
         spec["gaussians.part_ids"] = ("int16", (n,))
+    if g.get("blend_names"):
+        spec["gaussians.blend_weights"] = ("float32", (n, len(g["blend_names"])))
     dyn = header.get("dynamics")
     if dyn:
-        for key in ("F", "G"):
-            if dyn.get(key) is None:
-                continue
-            cfg = MLPConfig.from_json(dyn[key])
-            spec[f"dynamics.{key}.input_shift"] = ("float32", (cfg.raw_input_dim,))
-            spec[f"dynamics.{key}.input_scale"] = ("float32", (cfg.raw_input_dim,))
-            for i, (o, fan_in) in enumerate(cfg.layer_shapes()):
-                spec[f"dynamics.{key}.layers.{i}.weight"] = ("float32", (o, fan_in))
-                spec[f"dynamics.{key}.layers.{i}.bias"] = ("float32", (o,))
+        spec.update(dynamics_tensors(dyn, header.get("format_version", 1)))
     cnn = header.get("cnn")
     if cnn:
-        for i, layer in enumerate(CNNConfig.from_json(cnn).layers):
-            spec[f"cnn.layers.{i}.weight"] = ("float32", (layer.out_channels, layer.in_channels, layer.kernel,
-                                                          layer.kernel))
-            spec[f"cnn.layers.{i}.bias"] = ("float32", (layer.out_channels,))
+        spec.update(cnn_tensors(cnn))
     ex = header.get("expression")
     if ex:
         d, c = ex["dim"], ex["n_components"]
@@ -98,11 +99,18 @@ def expected_tensors(header: dict) -> Spec:
 # writing
 
 
+def format_version_for(avatar: Avatar) -> int:
+    """The oldest format version that holds `avatar` (1 for NPGA's F and G, 2 for any other dynamics)."""
+    simple = (avatar.dynamics is None or avatar.dynamics.simple) and (avatar.cnn is None or avatar.cnn.config.simple)
+    return 1 if simple and avatar.cloud.blend_weights is None else 2
+
+
 def _avatar_header(avatar: Avatar, provenance: dict) -> tuple[dict, dict[str, np.ndarray]]:
     c = avatar.cloud
+    version = format_version_for(avatar)
     header: dict[str, Any] = {
         "format": "npga",
-        "format_version": FORMAT_VERSION,
+        "format_version": version,
         "units": avatar.units,
         "gaussians": {
             "count": len(c),
@@ -128,20 +136,17 @@ def _avatar_header(avatar: Avatar, provenance: dict) -> tuple[dict, dict[str, np
         arrays["gaussians.latent"] = c.latent
     if c.part_ids is not None:
         arrays["gaussians.part_ids"] = c.part_ids
+    if c.blend_weights is not None:
+        header["gaussians"]["blend_names"] = list(c.blend_names)
+        arrays["gaussians.blend_weights"] = c.blend_weights
     if avatar.dynamics is not None:
         avatar.dynamics.validate_for(c)
-        dyn: dict[str, Any] = {"rotation_op": avatar.dynamics.rotation_op, "F": None, "G": None}
-        for key, net in avatar.dynamics.networks().items():
-            dyn[key] = net.config.to_json()
-            for name, t in net.state_dict().items():
-                arrays[f"dynamics.{key}.{name}"] = t.detach().cpu().numpy()
-        header["dynamics"] = dyn
+        header["dynamics"], dyn_arrays = dynamics_section(avatar.dynamics, version)
+        arrays.update(dyn_arrays)
     if avatar.cnn is not None:
         avatar.cnn.config.validate(c.latent_dim)
-        header["cnn"] = avatar.cnn.config.to_json()
-        for i, conv in enumerate(avatar.cnn.convs):
-            arrays[f"cnn.layers.{i}.weight"] = conv.weight.detach().cpu().numpy()
-            arrays[f"cnn.layers.{i}.bias"] = conv.bias.detach().cpu().numpy()
+        header["cnn"], cnn_arrays = cnn_section(avatar.cnn)
+        arrays.update(cnn_arrays)
     ex = avatar.expression
     if ex is not None:
         ex.validate()
@@ -298,6 +303,10 @@ def _check_header_schema(header: dict) -> None:
         raise _Invalid("gaussians.part_names must be a list of strings")
     if len(set(parts)) != len(parts):
         raise _Invalid("gaussians.part_names has duplicate names")
+    blends = g.get("blend_names", [])
+    if (not isinstance(blends, list) or not all(isinstance(p, str) for p in blends) or len(blends) > 16
+            or len(set(blends)) != len(blends)):
+        raise _Invalid("gaussians.blend_names must be a list of at most 16 distinct strings")
     if not isinstance(header.get("units", "m"), str):
         raise _Invalid("units must be a string")
     for key in ("dynamics", "cnn", "expression", "provenance"):
@@ -305,23 +314,10 @@ def _check_header_schema(header: dict) -> None:
             raise _Invalid(f"header.{key} must be an object or null")
     dyn = header.get("dynamics")
     if dyn:
-        if dyn.get("F") is None and dyn.get("G") is None:
-            raise _Invalid("dynamics has neither F nor G")
-        if dyn.get("rotation_op", "compose") not in ("compose", "add"):
-            raise _Invalid(f"dynamics.rotation_op {dyn.get('rotation_op')!r} is not 'compose' or 'add'")
-        for key in ("F", "G"):
-            cfg = dyn.get(key)
-            if cfg is None:
-                continue
-            if not isinstance(cfg, dict):
-                raise _Invalid(f"dynamics.{key} must be an object")
-            for name in ("feature_dim", "code_dim", "hidden", "depth", "pos_freqs"):
-                if name in cfg:
-                    _int(cfg, name, f"dynamics.{key}", 0, 65536)
-            try:
-                MLPConfig.from_json(cfg)
-            except ValueError as e:
-                raise _Invalid(f"dynamics.{key}: {e}") from None
+        try:
+            check_dynamics(dyn, header["format_version"])
+        except HeaderError as e:
+            raise _Invalid(str(e)) from None
     if header.get("cnn"):
         try:
             CNNConfig.from_json(header["cnn"])
@@ -383,12 +379,24 @@ def _map_tensors(path: Path, header: dict, data_start: int) -> dict[str, np.ndar
     for (_, e0, n0), (s1, _, n1) in zip(spans, spans[1:], strict=False):
         if s1 < e0:
             raise _Invalid(f"tensors {n0} and {n1} overlap")
-    mm = np.memmap(path, dtype=np.uint8, mode="r") if size else np.zeros(0, np.uint8)
+    data = _read_data(path, data_start, end_needed - data_start)
     out = {}
     for name, (dt, shape, off, nbytes) in entries.items():
-        buf = mm[data_start + off : data_start + off + nbytes]
-        out[name] = buf.view(_DTYPES[dt]).reshape(shape)
+        out[name] = data[off : off + nbytes].view(_DTYPES[dt]).reshape(shape)
     return out
+
+
+def _read_data(path: Path, start: int, nbytes: int) -> np.ndarray:
+    """The data section read into memory (read-only): never mapped, so a file truncated or rewritten by another
+    program while it is open cannot crash the process (a mapped page past a new end is SIGBUS)."""
+    buf = np.empty(nbytes, np.uint8)
+    with open_regular(path, "an .npga checkpoint") as fh:
+        fh.seek(start)
+        got = fh.readinto(memoryview(buf)) if nbytes else 0
+    if got != nbytes:
+        raise _Invalid(f"truncated while reading: the data needs {nbytes} bytes, {got} could be read")
+    buf.setflags(write=False)
+    return buf
 
 
 def _check_values(t: dict[str, np.ndarray], header: dict) -> None:
@@ -405,6 +413,13 @@ def _check_values(t: dict[str, np.ndarray], header: dict) -> None:
     ls = t["gaussians.log_scales"]
     if ls.size and np.abs(ls).max() > 80:
         raise _Invalid("gaussians.log_scales has values beyond +-80 (scale overflows float32)")
+    w = t.get("gaussians.blend_weights")
+    if w is not None and w.size and (w.min() < 0.0 or w.max() > 1.0):
+        raise _Invalid("gaussians.blend_weights has values outside 0..1")
+    for name, a in t.items():
+        if name.startswith(("dynamics.", "cnn.", "expression.")) and a.size and np.abs(a).max() > MAX_PARAMETER:
+            raise _Invalid(f"{name} has values beyond +-{MAX_PARAMETER:.0e} (no trained network has them; they "
+                           "overflow float32 in a forward pass)")
     if "gaussians.part_ids" in t:
         p = t["gaussians.part_ids"]
         n_parts = len(header["gaussians"]["part_names"])
@@ -424,40 +439,24 @@ def _build_avatar(path: Path, header: dict, t: dict[str, np.ndarray]) -> Avatar:
         latent=t.get("gaussians.latent"),
         part_ids=t.get("gaussians.part_ids"),
         part_names=list(g.get("part_names", [])),
+        blend_weights=t.get("gaussians.blend_weights"),
+        blend_names=list(g.get("blend_names", [])),
     )
     dynamics = None
     dyn = header.get("dynamics")
     if dyn:
-        nets: dict[str, ConditionedMLP | None] = {}
-        for key in ("F", "G"):
-            if dyn.get(key) is None:
-                nets[key] = None
-                continue
-            net = ConditionedMLP(MLPConfig.from_json(dyn[key]))
-            state = {name[len(f"dynamics.{key}.") :]: torch.from_numpy(np.array(a))
-                     for name, a in t.items() if name.startswith(f"dynamics.{key}.")}
-            net.load_state_dict(state, strict=True)
-            net.eval()
-            nets[key] = net
         try:
-            dynamics = Dynamics(nets["F"], nets["G"], dyn.get("rotation_op", "compose"))
+            dynamics = build_dynamics(dyn, header["format_version"], t)
             dynamics.validate_for(cloud)
         except ValueError as e:
             raise _Invalid(f"dynamics do not fit the Gaussians: {e}") from None
     cnn = None
     if header.get("cnn"):
-        cfg = CNNConfig.from_json(header["cnn"])
         try:
-            cfg.validate(cloud.latent_dim)
+            CNNConfig.from_json(header["cnn"]).validate(cloud.latent_dim)
         except ValueError as e:
             raise _Invalid(f"cnn: {e}") from None
-        cnn = ScreenCNN(cfg)
-        state = {}
-        for i in range(len(cfg.layers)):
-            state[f"convs.{i}.weight"] = torch.from_numpy(np.array(t[f"cnn.layers.{i}.weight"]))
-            state[f"convs.{i}.bias"] = torch.from_numpy(np.array(t[f"cnn.layers.{i}.bias"]))
-        cnn.load_state_dict(state, strict=True)
-        cnn.eval()
+        cnn = build_cnn(header["cnn"], t)
     expression = None
     ex = header.get("expression")
     if ex:
@@ -479,7 +478,7 @@ def _build_avatar(path: Path, header: dict, t: dict[str, np.ndarray]) -> Avatar:
 
 
 def read_avatar(path: str | Path) -> Avatar:
-    """Read and fully validate a `.npga` file; per-Gaussian arrays stay memory-mapped (read-only).
+    """Read and fully validate a `.npga` file; arrays are read into memory (read-only, never mapped).
 
     Raises AvatarFileError("path: problem") for anything wrong with the file.
     """

@@ -1,8 +1,9 @@
 """The one place that opens avatars and sequences: decides the format and dispatches to its reader.
 
-`load_avatar` reads `.npga` checkpoints and 3DGS PLY files (by their first bytes) and the bundled demo;
-`load_sequence` reads `.npzseq`/`.npz`, `.npy`, MonoNPHM tracking folders and the NeRSemble / GaussianAvatars
-tracking npz files (recognised by their keys). The model knows no file format.
+`load_avatar` reads `.npga` checkpoints and 3DGS PLY files (by their first bytes), Gaussian-Head-Avatar checkpoint
+folders (by their content) and the bundled demo;
+`load_sequence` reads `.npzseq`/`.npz`, `.npy`, MonoNPHM tracking folders, GHA's params folders and the
+NeRSemble / GaussianAvatars tracking npz files (recognised by their keys). The model knows no file format.
 """
 
 from __future__ import annotations
@@ -11,6 +12,7 @@ from pathlib import Path
 
 from npga_core.errors import AvatarFileError
 from npga_core.files.checkpoint import MAGIC, read_avatar
+from npga_core.files.gha import import_gha, is_gha_folder, is_gha_params, read_gha_params
 from npga_core.files.places import bundled_path
 from npga_core.files.ply import read_ply
 from npga_core.files.sequences import (
@@ -41,6 +43,11 @@ def load_avatar(path: str | Path) -> Avatar:
                                   "`python -m npga_core.demo.build`)")
         path = DEMO_AVATAR
     p = Path(path)
+    if p.is_dir():
+        if is_gha_folder(p):
+            return import_gha(p)
+        raise AvatarFileError(p, "is a folder, but not a Gaussian-Head-Avatar checkpoint folder "
+                              "(no gaussianhead_latest)")
     try:
         with open_regular(p, "an avatar file") as fh:  # no FIFO, device or directory: nothing read without end
             head = fh.read(len(MAGIC))
@@ -60,7 +67,7 @@ def load_sequence(path: str | Path, fps: float | None = None) -> ExpressionSeque
     NeRSemble FLAME tracking / GaussianAvatars flame_param npz, with the head pose as that source defines it."""
     path = Path(path)
     if path.is_dir():
-        seq = load_mononphm_folder(path)
+        seq = read_gha_params(path) if is_gha_params(path) else load_mononphm_folder(path)
     elif path.suffix == ".npy":
         codes = real_floats(read_npy(path, MAX_SEQUENCE_BYTES, "expression codes"), path, "expression codes")
         if codes.ndim == 1:

@@ -10,9 +10,19 @@ import numpy as np
 import torch
 
 from npga_core.model.cnn import ScreenCNN
-from npga_core.model.dynamics import Dynamics, Offsets, apply_offsets, cloud_tensors, to_posed_gaussians
+from npga_core.model.dynamics import (
+    Dynamics,
+    Offsets,
+    apply_offsets,
+    attribute_widths,
+    blend_tensors,
+    cloud_tensors,
+    route_into,
+    to_posed_gaussians,
+)
 from npga_core.model.expression import ExpressionSpace
 from npga_core.model.gaussians import GaussianCloud, PosedGaussians
+from npga_core.model.rigid import transform_posed
 
 
 @dataclass
@@ -33,7 +43,13 @@ class Avatar:
 
     @property
     def code_dim(self) -> int:
+        """Width of the frame vector the dynamics take: the expression code, then the condition (if any)."""
         return 0 if self.dynamics is None else self.dynamics.code_dim
+
+    @property
+    def condition_dim(self) -> int:
+        """Width of the condition part of the frame vector (0 without one)."""
+        return 0 if self.dynamics is None else self.dynamics.condition_dim
 
     def __len__(self) -> int:
         return len(self.cloud)
@@ -45,8 +61,11 @@ class Avatar:
         return np.zeros(self.code_dim, np.float32)
 
     def check_code(self, z: np.ndarray) -> np.ndarray:
-        """A float32 (D,) code, or ValueError naming both dimensions."""
+        """A float32 (D,) frame vector, or ValueError naming both dimensions. An expression code without the
+        condition part gets the neutral condition (zeros: Gaussian-Head-Avatar's head pose of a front view)."""
         z = np.asarray(z, dtype=np.float32).reshape(-1)
+        if self.condition_dim and z.shape[0] == self.code_dim - self.condition_dim:
+            z = np.concatenate([z, np.zeros(self.condition_dim, np.float32)])
         if z.shape[0] != self.code_dim:
             raise ValueError(f"expression code has {z.shape[0]} dims, the avatar expects {self.code_dim}")
         if not np.all(np.isfinite(z)):
@@ -67,7 +86,8 @@ class Avatar:
             h = hashlib.blake2b(digest_size=20)
             arrays = sorted(self.cloud.arrays().items())
             if self.dynamics is not None:
-                h.update(self.dynamics.rotation_op.encode())
+                h.update(repr(sorted(self.dynamics.rules.items())).encode())
+                h.update(repr([n.config.to_json() for n in self.dynamics.networks().values()]).encode())
                 arrays += [(k, t.detach().cpu().numpy()) for k, t in sorted(self.dynamics.state_dict().items())]
             for name, arr in arrays:
                 a = np.ascontiguousarray(arr)
@@ -91,17 +111,20 @@ class Avatar:
             raise ValueError("this avatar has no dynamics")
         zt = torch.from_numpy(self.check_code(z))
         t = self._tensors()
-        outs = {}
+        blend = blend_tensors(t, self.cloud.blend_names)
+        by = {}
         for key, net in self.dynamics.networks().items():
             if key not in self._first_layer:
                 self._first_layer[key] = net.precompute(t["means"], t["features"])
             gi = (t["means"], t["features"]) if net.config.skips else None
             t0 = time.perf_counter()
-            outs[key] = net.evaluate(self._first_layer[key], zt, chunk=chunk, gaussian_inputs=gi)
+            out = net.evaluate(self._first_layer[key], zt, chunk=chunk, gaussian_inputs=gi)
+            acc = {a: torch.zeros(len(out), w) for a, w in attribute_widths({key: net}).items()}
+            route_into(acc, net, out, None if net.config.blend is None else blend[net.config.blend])
+            by[key] = acc
             if timings is not None:
                 timings[key] = (time.perf_counter() - t0) * 1000.0
-        g = self.dynamics.G.split(outs["G"]) if "G" in outs else {}
-        return Offsets(outs.get("F"), g)
+        return Offsets(by)
 
     @torch.no_grad()
     def offsets_reference(self, z: np.ndarray) -> Offsets:
@@ -109,15 +132,18 @@ class Avatar:
         if self.dynamics is None:
             raise ValueError("this avatar has no dynamics")
         t = self._tensors()
-        return self.dynamics.offsets(t["means"], t["features"], torch.from_numpy(self.check_code(z)))
+        return self.dynamics.offsets(t["means"], t["features"], torch.from_numpy(self.check_code(z)),
+                                     blend_tensors(t, self.cloud.blend_names))
 
     @torch.no_grad()
-    def pose(self, z: np.ndarray | None = None, reference: bool = False,
-             timings: dict[str, float] | None = None) -> PosedGaussians:
-        """Posed, activated Gaussians at code z (None: the mean code; static avatars ignore z)."""
+    def pose(self, z: np.ndarray | None = None, reference: bool = False, timings: dict[str, float] | None = None,
+             head: np.ndarray | None = None) -> PosedGaussians:
+        """Posed, activated Gaussians at frame vector z (None: the mean code; static avatars ignore z), moved by
+        the rigid head transform `head` (4x4 similarity, canonical -> world) when given."""
         if self.dynamics is None:
-            return self.cloud.posed_static()
-        z = self.neutral_code() if z is None else z
-        off = self.offsets_reference(z) if reference else self.offsets(z, timings=timings)
-        posed = apply_offsets(self._tensors(), off, self.dynamics.rotation_op)
-        return to_posed_gaussians(posed)
+            posed = self.cloud.posed_static()
+        else:
+            z = self.neutral_code() if z is None else z
+            off = self.offsets_reference(z) if reference else self.offsets(z, timings=timings)
+            posed = to_posed_gaussians(apply_offsets(self._tensors(), off, self.dynamics.rules))
+        return posed if head is None else transform_posed(posed, head)

@@ -1,55 +1,40 @@
-"""The NPGA dynamics module: the MLPs F(mu, f; z) and G(mu, f; z) and how their offsets pose a cloud.
+"""The dynamics module: named networks (`networks.py`) and how their routed outputs pose a cloud.
 
-Both networks share one architecture (`MLPConfig`): the raw input is the concatenation
-``[mu (3), f (F), z (D)]``, normalised as ``(x - input_shift) * input_scale``; optionally mu is expanded
-with a sinusoidal positional encoding; then `depth` linear layers with an activation between them
-(the last layer is linear). Layers listed in `skips` get the encoded input concatenated again.
+Every network's output columns are routed to attributes (`Route`: columns, target columns, scale); a network may
+be blended per Gaussian by one of the cloud's `blend_weights` columns (its rows with weight 0 do not depend on
+it). The offset of an attribute is the sum over networks of ``weight * scale * columns``; `RULES` says, per
+attribute, how that offset combines with the canonical value (the group operation), written once here in
+`ATTRIBUTE_OPS`. NPGA's F(mu, f; z) and G(mu, f; z) are the networks "F" and "G" with weight 1 and scale 1.
 
-The output columns of a network are named blocks (`OUTPUT_WIDTHS`): F has ``position``; G may have any
-of ``position, rotation, scale, opacity, sh, latent``. `ATTRIBUTE_OPS` is the single place that says how an
-offset combines with its canonical attribute (the group operation) and what its neutral element is.
+The per-frame input of all networks is one vector, the frame vector ``[code (D_e), condition (D_c)]``: the
+expression code, then an optional second condition (Gaussian-Head-Avatar's head pose, `condition` says what it
+is). A tracked rigid head transform (rotation, translation, scale) is applied to the posed output by
+`PosedGaussians.transformed`.
 """
 
 from __future__ import annotations
 
-import math
 from collections.abc import Callable
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 import torch
 from torch import nn
 
 from npga_core.model.gaussians import GaussianCloud, PosedGaussians
+from npga_core.model.networks import (
+    ACTIVATIONS,
+    ATTRIBUTES,
+    MAX_POS_FREQS,
+    ConditionedMLP,
+    MLPConfig,
+    Route,
+    strict_int,
+)
 
-
-def strict_int(v: object, what: str) -> int:
-    """`v` if it is a JSON integer (not a bool, float or string), else ValueError."""
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise ValueError(f"{what} must be an integer, got {v!r}")
-    return v
-
-
-def _strict_str(v: object, what: str) -> str:
-    if not isinstance(v, str):
-        raise ValueError(f"{what} must be a string, got {v!r}")
-    return v
-
-
-MAX_POS_FREQS = 20
-
-ACTIVATIONS: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
-    "relu": torch.relu,
-    "silu": nn.functional.silu,
-    "gelu": nn.functional.gelu,
-    "softplus": nn.functional.softplus,
-    "tanh": torch.tanh,
-    "elu": nn.functional.elu,
-    "leaky_relu": nn.functional.leaky_relu,
-}
-
-#: The attributes an offset can act on, in canonical output order.
-ATTRIBUTES: tuple[str, ...] = ("position", "rotation", "scale", "opacity", "sh", "latent")
+__all__ = ["ACTIVATIONS", "ATTRIBUTES", "ATTRIBUTE_OPS", "MAX_POS_FREQS", "RULES", "ConditionedMLP", "Dynamics",
+           "MLPConfig", "Offsets", "Route", "apply_offsets", "cloud_tensors", "output_widths", "strict_int",
+           "to_posed_gaussians"]
 
 
 @dataclass(frozen=True)
@@ -89,298 +74,193 @@ def _add_rotation(c: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
     return _normalize(_normalize(c) + d)
 
 
-#: The group operations, written down once. Keys are attribute names; "rotation" has two conventions,
-#: chosen per avatar by the header key `dynamics.rotation_op` ("compose" default, "add" as in GaussianHeadAvatar).
+def _add_raw_legacy(c: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+    q = c + d  # GHA before 2024-07-12: F.normalize over the Gaussians (dim 1 of (B, N, 4)), one norm per component
+    return _normalize(q / q.norm(dim=0, keepdim=True).clamp_min(1e-12))
+
+
+#: The group operations, written down once, by rule name ("attribute" or "attribute_variant").
 ATTRIBUTE_OPS: dict[str, AttributeOp] = {
     "position": AttributeOp("mu + d", "0", lambda c, d: c + d),
     "rotation": AttributeOp("normalize(normalize((1,0,0,0) + d) * normalize(q))", "0 (identity rotation)",
                             _compose_rotation),
     "rotation_add": AttributeOp("normalize(normalize(q) + d)", "0", _add_rotation),
+    "rotation_add_raw": AttributeOp("normalize(q + d), q as stored (Gaussian-Head-Avatar)", "0",
+                                    lambda c, d: _normalize(c + d)),
+    "rotation_add_raw_legacy": AttributeOp(
+        "q + d divided by its norm over all Gaussians per component, then normalised (Gaussian-Head-Avatar "
+        "before 2024-07-12)", "0", _add_raw_legacy),
     "scale": AttributeOp("log_s + d (scales multiply by exp(d))", "0 (factor 1)", lambda c, d: c + d),
     "opacity": AttributeOp("logit + d", "0", lambda c, d: c + d),
-    "sh": AttributeOp("sh + d on the first d.shape/3 coefficients", "0", lambda c, d: c + d),
+    "sh": AttributeOp("sh + d on the coefficients the routes reach", "0", lambda c, d: c + d),
     "latent": AttributeOp("h + d", "0", lambda c, d: c + d),
 }
 
+#: The rules each attribute may be composed by (first: the default); keys of `ATTRIBUTE_OPS` are
+#: attribute or attribute_rule.
+RULES: dict[str, tuple[str, ...]] = {
+    "position": ("add",),
+    "rotation": ("compose", "add", "add_raw", "add_raw_legacy"),
+    "scale": ("add",),
+    "opacity": ("add",),
+    "sh": ("add",),
+    "latent": ("add",),
+}
+
+
+def op_for(attribute: str, rule: str) -> AttributeOp:
+    """The `ATTRIBUTE_OPS` entry of an attribute under a rule."""
+    return ATTRIBUTE_OPS[attribute if rule == RULES[attribute][0] else f"{attribute}_{rule}"]
+
 
 def output_widths(sh_degree: int, latent_dim: int) -> dict[str, int]:
-    """Full width of each attribute's offset block for a cloud layout."""
-    return {
-        "position": 3,
-        "rotation": 4,
-        "scale": 3,
-        "opacity": 1,
-        "sh": 3 * (sh_degree + 1) ** 2,
-        "latent": latent_dim,
-    }
-
-
-@dataclass
-class MLPConfig:
-    """Architecture of one conditioned MLP (F or G), as stored in the checkpoint header."""
-
-    feature_dim: int
-    code_dim: int
-    outputs: list[tuple[str, int]]
-    hidden: int = 256
-    depth: int = 6
-    activation: str = "relu"
-    pos_freqs: int = 0
-    skips: list[int] = field(default_factory=list)
-
-    @property
-    def raw_input_dim(self) -> int:
-        return 3 + self.feature_dim + self.code_dim
-
-    @property
-    def mu_encoded_dim(self) -> int:
-        return 3 * (1 + 2 * self.pos_freqs)
-
-    @property
-    def encoded_input_dim(self) -> int:
-        return self.mu_encoded_dim + self.feature_dim + self.code_dim
-
-    @property
-    def out_dim(self) -> int:
-        return sum(w for _, w in self.outputs)
-
-    def layer_shapes(self) -> list[tuple[int, int]]:
-        """(out, in) of each linear layer's weight."""
-        shapes = []
-        for i in range(self.depth):
-            fan_in = self.encoded_input_dim if i == 0 else self.hidden
-            if i in self.skips:
-                fan_in += self.encoded_input_dim
-            fan_out = self.out_dim if i == self.depth - 1 else self.hidden
-            shapes.append((fan_out, fan_in))
-        return shapes
-
-    def flops_per_gaussian(self) -> int:
-        """Multiply-adds x2 of one forward pass per Gaussian (all layers)."""
-        return sum(2 * o * i for o, i in self.layer_shapes())
-
-    def validate(self) -> None:
-        """Raise ValueError if the configuration is inconsistent."""
-        if self.depth < 1:
-            raise ValueError(f"depth must be >= 1, got {self.depth}")
-        if self.hidden < 1 or self.feature_dim < 0 or self.code_dim < 0 or self.pos_freqs < 0:
-            raise ValueError("hidden, feature_dim, code_dim and pos_freqs must be non-negative (hidden >= 1)")
-        if self.pos_freqs > MAX_POS_FREQS:
-            raise ValueError(f"pos_freqs {self.pos_freqs} exceeds {MAX_POS_FREQS} (float32 sin/cos lose all meaning)")
-        if self.activation not in ACTIVATIONS:
-            raise ValueError(f"unknown activation {self.activation!r} (known: {', '.join(ACTIVATIONS)})")
-        for s in self.skips:
-            if not 1 <= s < self.depth:
-                raise ValueError(f"skip layer {s} outside 1..{self.depth - 1}")
-        seen = set()
-        for name, width in self.outputs:
-            if name not in ATTRIBUTES:
-                raise ValueError(f"unknown output block {name!r} (known: {', '.join(ATTRIBUTES)})")
-            if name in seen:
-                raise ValueError(f"output block {name!r} listed twice")
-            if width < 1:
-                raise ValueError(f"output block {name!r} has width {width}")
-            seen.add(name)
-        if not self.outputs:
-            raise ValueError("no output blocks")
-
-    def to_json(self) -> dict:
-        return {
-            "feature_dim": self.feature_dim,
-            "code_dim": self.code_dim,
-            "outputs": [[n, w] for n, w in self.outputs],
-            "hidden": self.hidden,
-            "depth": self.depth,
-            "activation": self.activation,
-            "pos_freqs": self.pos_freqs,
-            "skips": list(self.skips),
-        }
-
-    @staticmethod
-    def from_json(d: dict) -> MLPConfig:
-        try:
-            cfg = MLPConfig(
-                feature_dim=strict_int(d["feature_dim"], "feature_dim"),
-                code_dim=strict_int(d["code_dim"], "code_dim"),
-                outputs=[(_strict_str(n, "output name"), strict_int(w, f"width of {n}")) for n, w in d["outputs"]],
-                hidden=strict_int(d.get("hidden", 256), "hidden"),
-                depth=strict_int(d.get("depth", 6), "depth"),
-                activation=_strict_str(d.get("activation", "relu"), "activation"),
-                pos_freqs=strict_int(d.get("pos_freqs", 0), "pos_freqs"),
-                skips=[strict_int(s, "skip") for s in d.get("skips", [])],
-            )
-        except (KeyError, TypeError, ValueError) as e:
-            raise ValueError(f"malformed MLP architecture: {e}") from None
-        cfg.validate()
-        return cfg
-
-
-class ConditionedMLP(nn.Module):
-    """One NPGA MLP: (mu, f, z) -> named offset blocks.
-
-    `forward` is the plain reference. `precompute` + `evaluate` is the fast path: the per-Gaussian part
-    of the first layer (mu and f columns, plus bias) is computed once; per code only a (hidden,) vector is
-    added, then the remaining layers run in cache-sized chunks with preallocated buffers.
-    """
-
-    def __init__(self, config: MLPConfig):
-        super().__init__()
-        config.validate()
-        self.config = config
-        self.layers = nn.ModuleList(nn.Linear(i, o) for o, i in config.layer_shapes())
-        self.register_buffer("input_shift", torch.zeros(config.raw_input_dim))
-        self.register_buffer("input_scale", torch.ones(config.raw_input_dim))
-        self._act = ACTIVATIONS[config.activation]
-
-    # -- input conditioning -------------------------------------------------------------------------
-    def encode_gaussian(self, mu: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
-        """Normalised, encoded per-Gaussian inputs [enc(mu), f] (N, mu_encoded_dim + F)."""
-        c = self.config
-        shift, scale = self.input_shift, self.input_scale
-        mu_n = (mu - shift[:3]) * scale[:3]
-        f_n = (f - shift[3 : 3 + c.feature_dim]) * scale[3 : 3 + c.feature_dim]
-        parts = [mu_n]
-        for k in range(c.pos_freqs):
-            w = (2.0**k) * math.pi
-            parts += [torch.sin(w * mu_n), torch.cos(w * mu_n)]
-        return torch.cat(parts + [f_n], dim=-1)
-
-    def encode_code(self, z: torch.Tensor) -> torch.Tensor:
-        """Normalised code (..., D)."""
-        off = 3 + self.config.feature_dim
-        return (z - self.input_shift[off:]) * self.input_scale[off:]
-
-    # -- reference forward --------------------------------------------------------------------------
-    def forward(self, mu: torch.Tensor, f: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
-        """Plain forward. z is (D,) shared by all Gaussians or (N, D)."""
-        g = self.encode_gaussian(mu, f)
-        zc = self.encode_code(z)
-        if zc.dim() == 1:
-            zc = zc.expand(g.shape[0], -1)
-        x = torch.cat([g, zc], dim=-1)
-        h = x
-        for i, layer in enumerate(self.layers):
-            if i in self.config.skips:
-                h = torch.cat([h, x], dim=-1)
-            h = layer(h)
-            if i < len(self.layers) - 1:
-                h = self._act(h)
-        return h
-
-    # -- fast path ----------------------------------------------------------------------------------
-    @torch.no_grad()
-    def precompute(self, mu: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
-        """Per-Gaussian part of the first layer, bias included: (N, width of layer 0)."""
-        g = self.encode_gaussian(mu, f)
-        w0 = self.layers[0].weight
-        return torch.addmm(self.layers[0].bias, g, w0[:, : g.shape[1]].t())
-
-    @torch.no_grad()
-    def code_term(self, z: torch.Tensor) -> torch.Tensor:
-        """Code part of the first layer for one code z (D,): (width of layer 0,)."""
-        gw = self.config.mu_encoded_dim + self.config.feature_dim
-        return self.layers[0].weight[:, gw:] @ self.encode_code(z)
-
-    @torch.no_grad()
-    def evaluate(
-        self,
-        first: torch.Tensor,
-        z: torch.Tensor,
-        out: torch.Tensor | None = None,
-        chunk: int = 2048,
-        gaussian_inputs: tuple[torch.Tensor, torch.Tensor] | None = None,
-    ) -> torch.Tensor:
-        """Outputs for all Gaussians at code z from `precompute`'s result, in chunks.
-
-        `gaussian_inputs` (mu, f) is needed only when the architecture has skip layers.
-        """
-        c = self.config
-        n = first.shape[0]
-        if out is None:
-            out = torch.empty(n, c.out_dim, dtype=first.dtype)
-        zt = self.code_term(z)
-        zc = self.encode_code(z) if c.skips else None
-        bufs = [torch.empty(chunk, o, dtype=first.dtype) for o, _ in c.layer_shapes()[:-1]]
-        act_ = {"relu": torch.relu_}.get(c.activation)
-        for s in range(0, n, chunk):
-            e = min(n, s + chunk)
-            m = e - s
-            if c.depth == 1:
-                torch.add(first[s:e], zt, out=out[s:e])
-                continue
-            h = bufs[0][:m]
-            torch.add(first[s:e], zt, out=h)
-            h = act_(h) if act_ else self._act(h)
-            for i in range(1, c.depth):
-                layer = self.layers[i]
-                inp = h
-                if i in c.skips:
-                    mu, f = gaussian_inputs  # type: ignore[misc]
-                    x = torch.cat([self.encode_gaussian(mu[s:e], f[s:e]), zc.expand(m, -1)], dim=-1)
-                    inp = torch.cat([h, x], dim=-1)
-                if i == c.depth - 1:
-                    torch.addmm(layer.bias, inp, layer.weight.t(), out=out[s:e])
-                else:
-                    nxt = bufs[i][:m]
-                    torch.addmm(layer.bias, inp, layer.weight.t(), out=nxt)
-                    h = act_(nxt) if act_ else self._act(nxt)
-        return out
-
-    def split(self, out: torch.Tensor) -> dict[str, torch.Tensor]:
-        """Named output blocks (views into `out`)."""
-        blocks, o = {}, 0
-        for name, width in self.config.outputs:
-            blocks[name] = out[:, o : o + width]
-            o += width
-        return blocks
+    """Full width of each attribute's offset for a cloud layout."""
+    return {"position": 3, "rotation": 4, "scale": 3, "opacity": 1, "sh": 3 * (sh_degree + 1) ** 2,
+            "latent": latent_dim}
 
 
 @dataclass
 class Offsets:
-    """Offsets of every attribute at one code: F's position offset and G's named blocks."""
+    """Offsets at one frame vector: per network, per attribute (weighted and scaled, as they act)."""
 
-    f_position: torch.Tensor | None
-    g: dict[str, torch.Tensor]
+    by_network: dict[str, dict[str, torch.Tensor]]
 
     def total(self, name: str) -> torch.Tensor | None:
-        """Sum of F and G offsets for an attribute (F contributes only to position)."""
-        d = self.g.get(name)
-        if name == "position" and self.f_position is not None:
-            d = self.f_position if d is None else d + self.f_position
-        return d
+        """The summed offset of an attribute over all networks (None if no network reaches it)."""
+        parts = [o[name] for o in self.by_network.values() if name in o]
+        if not parts:
+            return None
+        width = max(p.shape[1] for p in parts)
+        out = torch.zeros(parts[0].shape[0], width, dtype=parts[0].dtype)
+        for p in parts:
+            out[:, : p.shape[1]] += p
+        return out
+
+    def totals(self) -> dict[str, torch.Tensor]:
+        return {a: t for a in ATTRIBUTES if (t := self.total(a)) is not None}
+
+    @property
+    def f_position(self) -> torch.Tensor | None:
+        """NPGA's F: its position offset (None without F)."""
+        return self.by_network.get("F", {}).get("position")
+
+    @property
+    def g(self) -> dict[str, torch.Tensor]:
+        """NPGA's G: its offsets by attribute (empty without G)."""
+        return self.by_network.get("G", {})
+
+
+def attribute_widths(networks: dict[str, ConditionedMLP]) -> dict[str, int]:
+    """Width of the summed offset of each attribute the networks reach (the widest route end), canonical order."""
+    widths: dict[str, int] = {}
+    for net in networks.values():
+        for r in net.config.routes or []:
+            widths[r.attribute] = max(widths.get(r.attribute, 0), r.to + r.width)
+    return {a: widths[a] for a in ATTRIBUTES if a in widths}
+
+
+def route_into(acc: dict[str, torch.Tensor], net: ConditionedMLP, out: torch.Tensor,
+               weight: torch.Tensor | None) -> None:
+    """Add a network's routed outputs (N, out_dim), times their scales and the blend `weight` (N,), into `acc`."""
+    for r in net.config.routes or []:
+        part = out[:, r.start : r.start + r.width] * r.scale
+        if weight is not None:
+            part = part * weight[:, None]
+        dest = acc[r.attribute]
+        dest[:, r.to : r.to + r.width] += part
 
 
 class Dynamics(nn.Module):
-    """F (coarse position offsets) and G (offsets of every attribute); either may be absent."""
+    """Named networks with their composition rules; NPGA's F and G are `Dynamics(F, G)`.
 
-    def __init__(self, F: ConditionedMLP | None, G: ConditionedMLP | None, rotation_op: str = "compose"):
+    `rules` maps attributes to their rule (`RULES`; default for missing ones), `condition` describes the
+    condition part of the frame vector (None: no condition), `blend_notes` how each blend weight was made.
+    """
+
+    def __init__(self, F: ConditionedMLP | None = None, G: ConditionedMLP | None = None,
+                 rotation_op: str = "compose", *, networks: dict[str, ConditionedMLP] | None = None,
+                 rules: dict[str, str] | None = None, condition: dict | None = None,
+                 blend_notes: dict[str, str] | None = None):
         super().__init__()
-        if F is None and G is None:
-            raise ValueError("Dynamics needs at least one of F and G")
-        if F is not None and [n for n, _ in F.config.outputs] != ["position"]:
-            raise ValueError("F must output exactly the 'position' block")
-        if rotation_op not in ("compose", "add"):
-            raise ValueError(f"rotation_op must be 'compose' or 'add', got {rotation_op!r}")
-        self.F = F
-        self.G = G
-        self.rotation_op = rotation_op
+        if networks is None:
+            networks = {k: m for k, m in (("F", F), ("G", G)) if m is not None}
+        if not networks:
+            raise ValueError("Dynamics needs at least one network")
+        self.nets = nn.ModuleDict(networks)
+        self.rules = {a: RULES[a][0] for a in RULES}
+        self.rules["rotation"] = rotation_op
+        self.rules.update(rules or {})
+        for a, r in self.rules.items():
+            if r not in RULES[a]:
+                raise ValueError(f"{a} rule {r!r} is not one of {', '.join(RULES[a])}")
+        self.condition = condition
+        self.blend_notes = dict(blend_notes or {})
+        dims = {(n.config.code_dim, n.config.condition_dim, n.config.feature_dim) for n in networks.values()}
+        if len(dims) > 1:
+            raise ValueError(f"the networks disagree on (code, condition, feature) widths: {sorted(dims)}")
+        if self.condition_dim and not condition:
+            raise ValueError("a condition part of the frame vector needs a description")
+
+    @property
+    def F(self) -> ConditionedMLP | None:  # noqa: N802 - the paper's name
+        return self.networks().get("F")
+
+    @property
+    def G(self) -> ConditionedMLP | None:  # noqa: N802 - the paper's name
+        return self.networks().get("G")
+
+    @property
+    def rotation_op(self) -> str:
+        return self.rules["rotation"]
+
+    def _first(self) -> MLPConfig:
+        return next(iter(self.nets.values())).config
+
+    @property
+    def expression_dim(self) -> int:
+        """D_e: width of the expression code part of the frame vector."""
+        return self._first().code_dim
+
+    @property
+    def condition_dim(self) -> int:
+        """D_c: width of the condition part of the frame vector (0 without one)."""
+        return self._first().condition_dim
 
     @property
     def code_dim(self) -> int:
-        return (self.F or self.G).config.code_dim  # type: ignore[union-attr]
+        """Width of the frame vector [code, condition] the networks take."""
+        return self.expression_dim + self.condition_dim
 
     @property
     def feature_dim(self) -> int:
-        return (self.F or self.G).config.feature_dim  # type: ignore[union-attr]
+        return self._first().feature_dim
 
     def networks(self) -> dict[str, ConditionedMLP]:
-        return {k: m for k, m in (("F", self.F), ("G", self.G)) if m is not None}
+        return dict(self.nets.items())
 
-    def offsets(self, mu: torch.Tensor, f: torch.Tensor, z: torch.Tensor) -> Offsets:
-        """Reference offsets (plain forward passes)."""
-        fp = self.F(mu, f, z) if self.F is not None else None
-        g = self.G.split(self.G(mu, f, z)) if self.G is not None else {}
-        return Offsets(fp, g)
+    @property
+    def simple(self) -> bool:
+        """Expressible in format version 1 (F and/or G of the fixed architecture, no blend, no condition)."""
+        return (set(self.nets) <= {"F", "G"} and all(n.config.simple for n in self.nets.values())
+                and self.rules["rotation"] in ("compose", "add")
+                and all(r == RULES[a][0] for a, r in self.rules.items() if a != "rotation")
+                and (self.F is None or [n for n, _ in self.F.config.outputs] == ["position"]))
+
+    def attribute_widths(self) -> dict[str, int]:
+        return attribute_widths(self.networks())
+
+    def offsets(self, mu: torch.Tensor, f: torch.Tensor, z: torch.Tensor,
+                blend: dict[str, torch.Tensor] | None = None) -> Offsets:
+        """Reference offsets (plain forward passes); `blend` maps blend names to (N,) weights."""
+        by = {}
+        for key, net in self.nets.items():
+            out = net(mu, f, z)
+            widths = attribute_widths({key: net})
+            acc = {a: torch.zeros(out.shape[0], w, dtype=out.dtype) for a, w in widths.items()}
+            w = None if net.config.blend is None else (blend or {})[net.config.blend]
+            route_into(acc, net, out, w)
+            by[key] = acc
+        return Offsets(by)
 
     def validate_for(self, cloud: GaussianCloud) -> None:
         """Raise ValueError if the networks do not fit the cloud's layout."""
@@ -389,48 +269,60 @@ class Dynamics(nn.Module):
             c = net.config
             if c.feature_dim != cloud.feature_dim:
                 raise ValueError(f"{key} expects {c.feature_dim} features, the cloud has {cloud.feature_dim}")
-            if c.code_dim != self.code_dim:
-                raise ValueError(f"{key} expects codes of {c.code_dim} dims, the other network {self.code_dim}")
-            for name, w in c.outputs:
-                if name == "sh":
-                    if w % 3 or w > widths["sh"]:
-                        raise ValueError(f"{key} sh block of width {w} does not fit {widths['sh']} SH values")
-                elif w != widths[name]:
-                    raise ValueError(f"{key} {name} block has width {w}, the cloud needs {widths[name]}")
+            if c.blend is not None and c.blend not in cloud.blend_names:
+                raise ValueError(f"{key} is blended by {c.blend!r}, which the cloud's blend weights lack")
+            for r in c.routes or []:
+                if r.to + r.width > widths[r.attribute]:
+                    raise ValueError(f"{key} writes {r.attribute} columns {r.to}..{r.to + r.width}, the cloud has "
+                                     f"{widths[r.attribute]}")
+                if r.attribute == "sh" and (r.to % 3 or r.width % 3):
+                    raise ValueError(f"{key} sh route does not cover whole RGB coefficients")
 
 
-def apply_offsets(cloud_t: dict[str, torch.Tensor], off: Offsets, rotation_op: str = "compose") -> dict:
-    """Posed stored-form attributes from canonical tensors and offsets, by `ATTRIBUTE_OPS`.
+def blend_tensors(cloud_t: dict, names: list[str]) -> dict[str, torch.Tensor]:
+    """The cloud's blend weights by name (from `cloud_tensors`)."""
+    w = cloud_t.get("blend_weights")
+    return {} if w is None else {n: w[:, i] for i, n in enumerate(names)}
 
-    `cloud_t` holds torch tensors means, quats, log_scales, opacity_logits (N,), sh (N,K,3), latent (or None).
-    Returns the same keys, posed (still in stored form: log scales, logits).
+
+def apply_offsets(cloud_t: dict[str, torch.Tensor], off: Offsets | dict[str, torch.Tensor],
+                  rules: dict[str, str] | str = "compose") -> dict:
+    """Posed stored-form attributes from canonical tensors and offsets, by the rules' `ATTRIBUTE_OPS`.
+
+    `cloud_t` holds torch tensors means, quats, log_scales, opacity_logits (N,), sh (N,K,3), latent (or None);
+    `off` the offsets (an `Offsets` or summed offsets by attribute); `rules` the attribute rules (a string is
+    the rotation rule). Returns the same keys, posed (still in stored form: log scales, logits).
     """
+    if isinstance(rules, str):
+        rules = {"rotation": rules}
+    totals = off.totals() if isinstance(off, Offsets) else off
     posed = dict(cloud_t)
     n = cloud_t["means"].shape[0]
-    d = off.total("position")
-    if d is not None:
+    if (d := totals.get("position")) is not None:
         posed["means"] = ATTRIBUTE_OPS["position"].apply(cloud_t["means"], d)
-    if (d := off.g.get("rotation")) is not None:
-        op = ATTRIBUTE_OPS["rotation" if rotation_op == "compose" else "rotation_add"]
-        posed["quats"] = op.apply(cloud_t["quats"], d)
-    if (d := off.g.get("scale")) is not None:
+    if (d := totals.get("rotation")) is not None:
+        posed["quats"] = op_for("rotation", rules.get("rotation", "compose")).apply(cloud_t["quats"], d)
+    if (d := totals.get("scale")) is not None:
         posed["log_scales"] = ATTRIBUTE_OPS["scale"].apply(cloud_t["log_scales"], d)
-    if (d := off.g.get("opacity")) is not None:
+    if (d := totals.get("opacity")) is not None:
         posed["opacity_logits"] = ATTRIBUTE_OPS["opacity"].apply(cloud_t["opacity_logits"], d[:, 0])
-    if (d := off.g.get("sh")) is not None:
-        sh = cloud_t["sh"].clone()
-        k = d.shape[1] // 3
-        sh[:, :k] = ATTRIBUTE_OPS["sh"].apply(sh[:, :k], d.reshape(n, k, 3))
-        posed["sh"] = sh
-    if (d := off.g.get("latent")) is not None and cloud_t.get("latent") is not None:
-        posed["latent"] = ATTRIBUTE_OPS["latent"].apply(cloud_t["latent"], d)
+    if (d := totals.get("sh")) is not None:
+        sh = cloud_t["sh"].clone().reshape(n, -1)
+        w = d.shape[1]
+        sh[:, :w] = ATTRIBUTE_OPS["sh"].apply(sh[:, :w], d)
+        posed["sh"] = sh.reshape(cloud_t["sh"].shape)
+    if (d := totals.get("latent")) is not None and cloud_t.get("latent") is not None:
+        lat = cloud_t["latent"].clone()
+        w = d.shape[1]
+        lat[:, :w] = ATTRIBUTE_OPS["latent"].apply(lat[:, :w], d)
+        posed["latent"] = lat
     return posed
 
 
 def cloud_tensors(cloud: GaussianCloud) -> dict[str, torch.Tensor | None]:
     """Canonical arrays of a cloud as float32 torch tensors (copies, so read-only maps are fine)."""
     t = {}
-    for k in ("means", "quats", "log_scales", "opacity_logits", "sh", "features", "latent"):
+    for k in ("means", "quats", "log_scales", "opacity_logits", "sh", "features", "latent", "blend_weights"):
         a = getattr(cloud, k)
         t[k] = None if a is None else torch.from_numpy(np.array(a, dtype=np.float32, copy=True))
     return t

@@ -29,8 +29,9 @@ PER_GAUSSIAN_FIELDS: tuple[str, ...] = (
     "features",
     "latent",
     "part_ids",
+    "blend_weights",
 )
-OPTIONAL_FIELDS: frozenset[str] = frozenset({"latent", "part_ids"})
+OPTIONAL_FIELDS: frozenset[str] = frozenset({"latent", "part_ids", "blend_weights"})
 
 
 def sh_coeff_count(degree: int) -> int:
@@ -88,6 +89,8 @@ class GaussianCloud:
     latent: np.ndarray | None = None  # (N, H)
     part_ids: np.ndarray | None = None  # (N,) int16 index into part_names, -1 = none
     part_names: list[str] = field(default_factory=list)
+    blend_weights: np.ndarray | None = None  # (N, B) per-Gaussian weights of blended networks, in [0, 1]
+    blend_names: list[str] = field(default_factory=list)  # the B names networks refer to
 
     def __post_init__(self) -> None:
         n = self.means.shape[0]
@@ -100,6 +103,9 @@ class GaussianCloud:
             if arr.shape[0] != n:
                 raise ValueError(f"GaussianCloud.{name} has {arr.shape[0]} rows, means has {n}")
         sh_degree_from_count(self.sh.shape[1])
+        if (self.blend_weights is None) != (not self.blend_names) or (
+                self.blend_weights is not None and self.blend_weights.shape[1:] != (len(self.blend_names),)):
+            raise ValueError("GaussianCloud.blend_weights needs one column per blend name")
 
     def __len__(self) -> int:
         return int(self.means.shape[0])
@@ -148,7 +154,9 @@ class GaussianCloud:
                 raise ValueError(f"cannot concatenate clouds where only some have {name}")
             else:
                 kw[name] = np.concatenate(parts, axis=0)
-        return GaussianCloud(**kw, part_names=list(first.part_names))
+        if any(c.blend_names != first.blend_names for c in clouds):
+            raise ValueError("cannot concatenate clouds with different blend weights")
+        return GaussianCloud(**kw, part_names=list(first.part_names), blend_names=list(first.blend_names))
 
     def posed_static(self) -> PosedGaussians:
         """Activated attributes without any dynamics (the canonical pose)."""
@@ -207,3 +215,4 @@ class PosedGaussians:
         """Rows selected by an index or mask."""
         kw = {f.name: (None if getattr(self, f.name) is None else getattr(self, f.name)[index]) for f in fields(self)}
         return PosedGaussians(**kw)
+

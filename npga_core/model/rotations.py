@@ -75,6 +75,16 @@ def rotvec_from_quat(q) -> np.ndarray:
     return Rotation.from_quat(_xyzw(b)).as_rotvec().reshape(*lead, 3)
 
 
+def quat_product(a, b) -> np.ndarray:
+    """Hamilton product a*b of (w, x, y, z) quaternions (float64, broadcast over leading dims; the rotation
+    b, then a)."""
+    a, b = np.asarray(a, np.float64), np.asarray(b, np.float64)
+    aw, ax, ay, az = np.moveaxis(a, -1, 0)
+    bw, bx, by, bz = np.moveaxis(b, -1, 0)
+    return np.stack((aw * bw - ax * bx - ay * by - az * bz, aw * bx + ax * bw + ay * bz - az * by,
+                     aw * by - ax * bz + ay * bw + az * bx, aw * bz + ax * by - ay * bx + az * bw), axis=-1)
+
+
 def matrix_from_euler(angles, order: str = "XYZ") -> np.ndarray:
     """Rotation matrices (..., 3, 3) of Euler angles (..., 3) in radians; scipy's `order`: upper case is
     intrinsic ("XYZ": R = Rx(a0) Ry(a1) Rz(a2)), lower case extrinsic."""

@@ -1,24 +1,22 @@
 """`FastPoser`: the exact dynamics at the matrix-multiply limit, with persistent buffers.
 
-Per frame only the code changes, so the per-Gaussian part of every network's first layer is computed once
-(`ConditionedMLP.precompute`, shared with `Avatar`'s cache) and a code costs one (hidden,) vector. Then F and
-G run chunk by chunk over the same rows; each chunk's offsets are applied (`ATTRIBUTE_OPS`, the same operation
-order as `apply_offsets` + `to_posed_gaussians`) while the chunk is still in cache and written straight into the
-caller's output arrays (e.g. a shared-memory slot). Chunk buffers are allocated once (oneDNN's calls return
-chunk-sized blocks that the allocator recycles: no page faults per frame); a frame allocates nothing of size N.
+Per frame only the frame vector changes, so the per-Gaussian part of every network's first layer is computed
+once (`ConditionedMLP.precompute`, shared with `Avatar`'s cache) and a frame costs one (hidden,) vector per
+network. Then the networks run chunk by chunk over the same rows (`chains.Chain`); each network's outputs are
+routed into the chunk's offset rows (scaled, times the blend weight of blended networks), and a network whose
+blend weight is zero outside a contiguous range of rows (Gaussian-Head-Avatar's near/far Gaussians, sorted so at
+import) runs on that range only. Each chunk's offsets are applied (`ATTRIBUTE_OPS` by the dynamics' rules, the
+same operation order as `apply_offsets` + `to_posed_gaussians`) while the chunk is still in cache and written
+straight into the caller's output arrays (e.g. a shared-memory slot). Chunk buffers are allocated once; a frame
+allocates nothing of size N.
 
-Offsets of all networks are handled as one row per Gaussian (`OffsetLayout`): F's columns, then G's. The
-preview model and the bake cache store and combine offsets in that layout.
-
-The hidden layers of ReLU networks run on oneDNN's linear with a fused bias + ReLU epilogue and weights packed
-once into its blocked layout (`kernel="onednn"`, torch's own `mkldnn` operators, the ones torch.compile uses on
-the CPU); without them (another build, a GPU) the chain runs on `torch.mm` with the biases folded (`"aten"`).
+Offsets are handled as one row per Gaussian (`OffsetLayout`): the summed offset of every attribute the networks
+reach. The preview model and the bake cache store and combine offsets in that layout.
 """
 
 from __future__ import annotations
 
 import copy
-import functools
 import platform
 import threading
 import time
@@ -30,53 +28,37 @@ import numpy as np
 import torch
 
 from npga_core.model.avatar import Avatar
-from npga_core.model.dynamics import ATTRIBUTE_OPS, ConditionedMLP, cloud_tensors, quat_multiply
+from npga_core.model.dynamics import ATTRIBUTE_OPS, ConditionedMLP, attribute_widths, cloud_tensors, quat_multiply
+from npga_core.model.networks import PER_GAUSSIAN_INPUTS
+from npga_core.posing.chains import FUSED, Chain, Scratch, onednn_available
 
-#: Offset blocks gathered into attribute-major rows before they are applied.
-SMALL_BLOCKS = ("F.position", "G.position", "G.rotation", "G.scale", "G.opacity")
+#: Attributes gathered into attribute-major rows before they are applied.
+SMALL_BLOCKS = ("position", "rotation", "scale", "opacity")
 KERNELS = ("auto", "onednn", "aten")
 
-
-@functools.cache
-def onednn_available() -> bool:
-    """True when torch has oneDNN's packed linear with a fused ReLU (`torch.ops.mkldnn._linear_pointwise`,
-    private to torch but what its compiler emits on CPUs) and it matches a plain product on a small test
-    (checked once per process)."""
-    try:
-        if not torch.backends.mkldnn.is_available():
-            return False
-        gen = torch.Generator().manual_seed(0)
-        x, w, b = (torch.randn(s, generator=gen) for s in ((37, 64), (48, 64), (48,)))
-        packed = torch.ops.mkldnn._reorder_linear_weight(w, 64)
-        y = torch.ops.mkldnn._linear_pointwise(x, packed, b, "relu", [], "")
-        return bool(torch.allclose(y, torch.relu(torch.addmm(b, x, w.t())), rtol=1e-4, atol=1e-4))
-    except (AttributeError, RuntimeError, NotImplementedError):
-        return False
+__all__ = ["KERNELS", "FastPoser", "OffsetLayout", "RowSet", "onednn_available", "posed_buffers", "resolve_device"]
 
 
 @dataclass(frozen=True)
 class OffsetLayout:
-    """Column blocks of the combined offset row: F's outputs first, then G's."""
+    """Column blocks of the combined offset row: the summed offset of each attribute, in canonical order."""
 
-    nets: tuple[tuple[str, int, int], ...]  # (network key, first column, width)
-    blocks: dict[str, tuple[int, int]]  # "F.position", "G.sh", ... -> (first column, width)
+    blocks: dict[str, tuple[int, int]]  # "position", "sh", ... -> (first column, width)
 
     @property
     def width(self) -> int:
-        return sum(w for _, _, w in self.nets)
+        return sum(w for _, w in self.blocks.values())
 
     @staticmethod
     def of(networks: dict[str, ConditionedMLP]) -> OffsetLayout:
-        nets, blocks, col = [], {}, 0
-        for key, net in networks.items():
-            nets.append((key, col, net.config.out_dim))
-            for name, width in net.config.outputs:
-                blocks[f"{key}.{name}"] = (col, width)
-                col += width
-        return OffsetLayout(tuple(nets), blocks)
+        blocks, col = {}, 0
+        for name, width in attribute_widths(networks).items():
+            blocks[name] = (col, width)
+            col += width
+        return OffsetLayout(blocks)
 
     def block(self, rows: torch.Tensor, key: str) -> torch.Tensor | None:
-        """The columns of block `key` ("G.scale") of an offset chunk, or None if absent."""
+        """The columns of attribute `key` ("scale") of an offset chunk, or None if absent."""
         if key not in self.blocks:
             return None
         c, w = self.blocks[key]
@@ -107,176 +89,60 @@ def resolve_device(name: str | None) -> torch.device:
 
 @dataclass
 class RowSet:
-    """Per-Gaussian network inputs of a set of rows: the first-layer terms if cached, else (mu, f) to encode."""
+    """Per-Gaussian network inputs of a set of rows: the first-layer terms if cached, else (mu, f) to encode;
+    the blend weights of blended networks on these rows and, per network, the contiguous range of rows it
+    reaches (None: all of them)."""
 
     means: torch.Tensor
     features: torch.Tensor
     first: dict[str, torch.Tensor] | None = None
     index: np.ndarray | None = None  # the avatar rows these are (None: all, in order)
+    weights: dict[str, torch.Tensor] = field(default_factory=dict)
+    spans: dict[str, tuple[int, int]] = field(default_factory=dict)
 
     @property
     def n(self) -> int:
         return int(self.means.shape[0])
 
+    def span(self, key: str, s: int, e: int) -> tuple[int, int]:
+        """The rows of s:e that network `key` reaches (an empty range when none)."""
+        a, b = self.spans.get(key, (0, self.n))
+        lo, hi = max(s, a), min(e, b)
+        return (lo, hi) if lo < hi else (s, s)
+
 
 @dataclass
 class _Lane:
-    """One thread's scratch: its own copy of every chain's buffers and an offset chunk."""
+    """One thread's scratch: its own copy of every chain's buffers, an offset chunk and a network output chunk."""
 
     index: int
-    chains: dict[str, _Chain]
+    chains: dict[str, Chain]
     offsets: torch.Tensor
-    scratch: _Scratch
+    scratch: Scratch
+    net_out: torch.Tensor
     busy: dict[str, float] = field(default_factory=dict)  # seconds per stage in the last parallel run
 
 
-class _Scratch:
-    """Two activation buffers of one lane, shared by all its chains: each layer reads one and writes the other,
-    so a chunk's working set stays two (chunk, width) blocks that fit in the core's L2 (one buffer per layer,
-    as before, walked through 5 MB per network at 1024 rows and was about 10 % slower)."""
-
-    def __init__(self, chunk: int, width: int, device: torch.device):
-        self.flat = [torch.empty(chunk * width, device=device) for _ in range(2)]
-
-    def view(self, i: int, m: int, width: int) -> torch.Tensor:
-        """Buffer i (0 or 1) as a contiguous (m, width) block."""
-        return self.flat[i][: m * width].view(m, width)
-
-
-class _Chain:
-    """One network after its per-Gaussian first-layer term; activations go through the lane's `_Scratch`."""
-
-    def __init__(self, net: ConditionedMLP, chunk: int, device: torch.device,
-                 packed: list[torch.Tensor | None] | None = None):
-        cfg = net.config
-        if cfg.skips:
-            raise ValueError("skip layers need the generic path (ConditionedMLP.evaluate)")
-        self.net = net
-        gw = cfg.mu_encoded_dim + cfg.feature_dim
-        self.first_weight = net.layers[0].weight.detach()[:, :gw].t().contiguous()
-        self.weights = [layer.weight.detach().t().contiguous() for layer in net.layers]
-        self.biases = [layer.bias.detach() for layer in net.layers]
-        self.widths = [o for o, _ in cfg.layer_shapes()]
-        self.out_flat = torch.empty(chunk * cfg.out_dim, device=device)
-        self.narrow = cfg.out_dim <= 8 and device.type == "cpu"
-        self.last_rows = net.layers[-1].weight.detach().contiguous()  # (out, in), for the transposed product
-        self.relu = cfg.activation == "relu"
-        self.act = net._act
-        self.packed = packed  # oneDNN weights of layers 1.. (None for the narrow output), or None: torch.mm
-        self.folded = self._fold() if self.relu and packed is None and len(self.weights) > 2 else None
-        self.flops_per_row = sum(2 * o * i for o, i in cfg.layer_shapes()[1:])
-
-    def _fold(self) -> list[torch.Tensor]:
-        """-B_i of hidden layers 1..depth-2, then the output layer's bias b_out + B_last W_out (see `run`)."""
-        consts, shift = [], torch.zeros_like(self.biases[0])
-        for i in range(1, len(self.weights)):
-            shift = torch.addmv(self.biases[i], self.weights[i].t(), shift)
-            consts.append(shift.neg() if i < len(self.weights) - 1 else shift)
-        return consts
-
-    @staticmethod
-    def pack(net: ConditionedMLP, chunk: int) -> list[torch.Tensor | None]:
-        """oneDNN's blocked copies of the weights of layers 1.. (read-only, shared by all lanes); None for a
-        narrow output layer, which stays a transposed `torch.mm`."""
-        layers = net.layers[1:]
-        return [None if i == len(layers) - 1 and net.config.out_dim <= 8 else
-                torch.ops.mkldnn._reorder_linear_weight(layer.weight.detach().contiguous(), chunk)
-                for i, layer in enumerate(layers)]
-
-    @property
-    def scratch_width(self) -> int:
-        """Widest hidden layer: the scratch buffers' width."""
-        return max(self.widths[:-1], default=1)
-
-    def _activate(self, h: torch.Tensor) -> torch.Tensor:
-        if self.relu:
-            return h.clamp_min_(0.0)
-        h.copy_(self.act(h))
-        return h
-
-    def run(self, first_rows: torch.Tensor | None, encoded: torch.Tensor | None, code_term: torch.Tensor,
-            first_bias: torch.Tensor, scratch: _Scratch, dest: torch.Tensor) -> None:
-        """Write the outputs of m rows into `dest` (m, out), from their cached first-layer term or their
-        encoded inputs. `code_term` is the code's part of layer 0; `first_bias` is layer 0's bias plus it.
-
-        In ReLU chains layers 1 and up add no bias to their hidden blocks: with s_i = a_(i-1) W_i and
-        a_i = relu(s_i + b_i) = max(s_i, -b_i) + b_i, each keeps only g_i = max(s_i, -B_i) (one pass instead of
-        a bias copy and a clamp) and the B_i it leaves out goes into the next layer's bias,
-        B_(i+1) = b_(i+1) + B_i W_(i+1) (constants of the network, `_fold`). Layer 0 keeps its bias: folding
-        the code term too made the rounding error 5x larger, this way it stays within 1.5x of the plain forward.
-        The output layer's bias is added while the result is copied into `dest`; a narrow output (F's 3
-        columns) is computed transposed, (out, m) = W h^T, which MKL does 4x faster than h W at that width.
-
-        With oneDNN weights (`packed`) each hidden layer is one call that adds the bias and applies the ReLU
-        while the block is still in registers: no folding, the same operation order as the plain forward.
-        """
-        source = first_rows if first_rows is not None else encoded
-        assert source is not None
-        m = source.shape[0]
-        depth = len(self.weights)
-        if depth == 1:
-            if first_rows is not None:
-                torch.add(first_rows, code_term, out=dest)
-            else:
-                dest.copy_(torch.addmm(first_bias, source, self.first_weight))
-            return
-        h = scratch.view(0, m, self.widths[0])
-        if first_rows is not None:
-            torch.add(first_rows, code_term, out=h)
-        else:
-            torch.addmm(first_bias, source, self.first_weight, out=h)
-        h = self._activate(h)
-        if self.packed is not None:
-            self._run_onednn(h, dest)
-            return
-        for i in range(1, depth - 1):
-            out = scratch.view(i % 2, m, self.widths[i])
-            if self.folded is not None:
-                torch.mm(h, self.weights[i], out=out)
-                h = torch.maximum(out, self.folded[i - 1], out=out)
-            else:
-                torch.addmm(self.biases[i], h, self.weights[i], out=out)
-                h = self._activate(out)
-        bias = self.biases[-1] if self.folded is None else self.folded[-1]
-        width = self.widths[-1]
-        if self.narrow:
-            res = self.out_flat[: width * m].view(width, m)
-            torch.mm(self.last_rows, h.t(), out=res)
-            torch.add(res.t(), bias, out=dest)
-        else:
-            res = self.out_flat[: width * m].view(m, width)
-            torch.mm(h, self.weights[-1], out=res)
-            torch.add(res, bias, out=dest)
-
-    def _run_onednn(self, h: torch.Tensor, dest: torch.Tensor) -> None:
-        """Layers 1.. of `run` on oneDNN: fused linear + bias + ReLU per hidden layer. Each call returns a new
-        (m, hidden) block; the allocator hands the same memory back every chunk (no page faults per frame)."""
-        linear = torch.ops.mkldnn._linear_pointwise
-        packed, biases = self.packed, self.biases
-        for i in range(1, len(packed)):
-            h = linear(h, packed[i - 1], biases[i], "relu", [], "")
-        if packed[-1] is None:
-            m, width = h.shape[0], self.widths[-1]
-            res = self.out_flat[: width * m].view(width, m)
-            torch.mm(self.last_rows, h.t(), out=res)
-            torch.add(res.t(), biases[-1], out=dest)
-        else:
-            dest.copy_(linear(h, packed[-1], biases[-1], "none", [], ""))
+def support_span(weight: np.ndarray) -> tuple[int, int] | None:
+    """The rows where a blend weight is not zero, as a range, if they are contiguous (else None)."""
+    nz = np.flatnonzero(weight)
+    if not len(nz):
+        return (0, 0)
+    return (int(nz[0]), int(nz[-1]) + 1) if nz[-1] - nz[0] + 1 == len(nz) else None
 
 
 class FastPoser:
-    """Exact posed clouds (and offsets) of an avatar at any code, fast; see the module docstring.
+    """Exact posed clouds (and offsets) of an avatar at any frame vector, fast; see the module docstring.
 
-    `first_layer`: "cache" keeps every Gaussian's first-layer term (N x hidden floats per network, shared with
-    `Avatar`'s cache); "recompute" encodes each chunk's (mu, f) again, a GEMM of width mu_enc + F that costs
-    about (mu_enc + F) / code_dim of layer 0 and nothing of memory; "auto" caches while the terms of all
-    networks fit `cache_mb`. `device` may be a GPU ("cuda", "mps"); results always land in CPU arrays.
-    Networks with skip layers are not supported (none of the paper's have them); see `supported`.
+    `first_layer`: "cache" keeps every Gaussian's first-layer term (rows x hidden floats per network, shared with
+    `Avatar`'s cache where a network reaches every row); "recompute" encodes each chunk's (mu, f) again, a GEMM
+    of the per-Gaussian input width that costs nothing of memory; "auto" caches while the terms of all networks
+    fit `cache_mb`. `device` may be a GPU ("cuda", "mps"); results always land in CPU arrays.
 
     `chunk`: rows per chunk (None: the kernel's best, measured). `kernel`: "onednn" runs the hidden layers of
-    ReLU networks on oneDNN's packed linear with a fused bias and ReLU (about 5 % faster here, see
-    docs/PERFORMANCE.md), "aten" on `torch.mm`; "auto" takes oneDNN on x86-64 CPUs when `onednn_available()`.
-    Networks with another activation always use "aten".
+    ReLU and leaky-ReLU networks on oneDNN's packed linear with a fused bias and activation (about 5 % faster
+    here, see docs/PERFORMANCE.md), "aten" on `torch.mm`; "auto" takes oneDNN on x86-64 CPUs when
+    `onednn_available()`. Networks with another activation always use "aten".
 
     `threads` lanes each take the next chunk and run it with single-threaded operations (torch's thread count
     is 1 while a pose runs): no barrier per operation, which with torch's own threads costs 10x or more as
@@ -286,14 +152,15 @@ class FastPoser:
     def __init__(self, avatar: Avatar, chunk: int | None = None, device: str | torch.device | None = None,
                  first_layer: str = "auto", cache_mb: float = 256.0, threads: int = 1, kernel: str = "auto"):
         dynamics = avatar.dynamics
-        if dynamics is None or not self.supported(avatar):
-            raise ValueError("the fast path needs dynamics without skip layers")
+        if dynamics is None:
+            raise ValueError("the fast path needs an avatar with dynamics")
         self.avatar = avatar
         self.version = avatar.version  # the avatar's edit version these buffers were built from
         self.device = device if isinstance(device, torch.device) else resolve_device(device)
         self.n = len(avatar)
         nets = dynamics.networks()
         self.layout = OffsetLayout.of(nets)
+        self.rules = dict(dynamics.rules)
         self.rotation_op = dynamics.rotation_op
         if self.device.type == "cpu":
             self.nets = nets
@@ -302,38 +169,44 @@ class FastPoser:
             self.nets = {k: copy.deepcopy(n).to(self.device).eval() for k, n in nets.items()}
             self.canonical = {k: None if v is None else v.to(self.device)
                               for k, v in cloud_tensors(avatar.cloud).items()}
+        weights, spans = self._blend(avatar)
         if first_layer == "auto":
-            need = self.n * sum(n.config.hidden for n in nets.values()) * 4 / 2**20
+            rows = {k: (spans[k][1] - spans[k][0]) if k in spans else self.n for k in nets}
+            need = sum(rows[k] * n.config.hidden for k, n in nets.items()) * 4 / 2**20
             first_layer = "cache" if need <= cache_mb else "recompute"
         if first_layer not in ("cache", "recompute"):
             raise ValueError(f"first_layer must be 'auto', 'cache' or 'recompute', got {first_layer!r}")
         self.first_layer = first_layer
-        self.rows = RowSet(self.canonical["means"], self.canonical["features"], self._first_terms())
+        self.rows = RowSet(self.canonical["means"], self.canonical["features"], None, None, weights, spans)
+        self.rows.first = self._first_terms()
         self.threads = max(1, int(threads)) if self.device.type == "cpu" else 1
         if kernel not in KERNELS:
             raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
-        fused = {k for k, n in self.nets.items() if n.config.activation == "relu" and n.config.depth > 1}
-        self.kernel = self._pick_kernel(kernel) if fused else "aten"  # oneDNN is only used for ReLU networks
+        fused = {k for k, n in self.nets.items() if n.config.activation in FUSED and n.config.depth > 1}
+        self.kernel = self._pick_kernel(kernel) if fused else "aten"  # oneDNN only for (leaky) ReLU networks
         # rows per chunk: oneDNN measured best at 2048, torch.mm at 1024 (two blocks in a 2 MB L2); GPUs take more
         default = 65536 if self.device.type != "cpu" else 2048 if self.kernel == "onednn" else 1024
         self.chunk = int(chunk) if chunk else default
-        packs = {k: _Chain.pack(n, self.chunk) if self.kernel == "onednn" and k in fused else None
+        packs = {k: Chain.pack(n, self.chunk) if self.kernel == "onednn" and k in fused else None
                  for k, n in self.nets.items()}
+        out_width = max(n.config.out_dim for n in self.nets.values())
         self._lanes = []
         for i in range(self.threads):
-            chains = {k: _Chain(n, self.chunk, self.device, packs[k]) for k, n in self.nets.items()}
+            chains = {k: Chain(n, self.chunk, self.device, packs[k]) for k, n in self.nets.items()}
             width = max(c.scratch_width for c in chains.values())
             self._lanes.append(_Lane(i, chains, torch.empty(self.chunk, self.layout.width, device=self.device),
-                                     _Scratch(self.chunk, width, self.device)))
+                                     Scratch(self.chunk, width, self.device),
+                                     torch.empty(self.chunk * out_width, device=self.device)))
         # OpenMP's thread count is per thread and a new thread starts with the default (all cores): without the
         # initializer each lane's GEMM forks its own team, lanes x cores threads on the cores (~20 % slower)
         self._pool = ThreadPoolExecutor(self.threads - 1, "fastpose", initializer=torch.set_num_threads,
                                         initargs=(1,)) if self.threads > 1 else None
         self._enc_key = {key: _encoding_key(net) for key, net in self.nets.items()}
-        chains = self._lanes[0].chains.values()
-        self.flops_per_gaussian = sum(c.flops_per_row for c in chains)
+        chains = self._lanes[0].chains
+        share = {k: (spans[k][1] - spans[k][0]) / max(self.n, 1) if k in spans else 1.0 for k in chains}
+        self.flops_per_gaussian = sum(c.flops_per_row * share[k] for k, c in chains.items())
         if first_layer == "recompute":
-            self.flops_per_gaussian += sum(2 * c.first_weight.numel() for c in chains)
+            self.flops_per_gaussian += sum(2 * c.first_weight.numel() * share[k] for k, c in chains.items())
         self._soa = _attribute_major(self.canonical)
         small = [(k, self.layout.blocks[k]) for k in SMALL_BLOCKS if k in self.layout.blocks]
         self._small: dict[str, tuple[int, int]] = {}
@@ -346,6 +219,21 @@ class FastPoser:
         self._small_cols: slice | torch.Tensor = slice(cols[0], cols[0] + len(cols)) if contiguous else \
             torch.tensor(cols, dtype=torch.int64, device=self.device)
 
+    def _blend(self, avatar: Avatar) -> tuple[dict[str, torch.Tensor], dict[str, tuple[int, int]]]:
+        """Per blended network: its weights on all rows, and the range of rows it reaches when contiguous."""
+        weights, spans = {}, {}
+        cloud = avatar.cloud
+        for key, net in self.nets.items():
+            name = net.config.blend
+            if name is None:
+                continue
+            column = np.asarray(cloud.blend_weights, np.float32)[:, cloud.blend_names.index(name)]
+            weights[key] = torch.from_numpy(np.ascontiguousarray(column)).to(self.device)
+            span = support_span(column)
+            if span is not None:
+                spans[key] = span
+        return weights, spans
+
     def _pick_kernel(self, kernel: str) -> str:
         usable = self.device.type == "cpu" and onednn_available()
         if kernel == "onednn" and not usable:
@@ -355,21 +243,27 @@ class FastPoser:
         return "onednn" if usable and (kernel == "onednn" or (kernel == "auto" and measured)) else "aten"
 
     def _first_terms(self) -> dict[str, torch.Tensor] | None:
+        """Per network the first-layer terms of the rows it reaches (its span, else all rows)."""
         if self.first_layer != "cache":
             return None
-        c = self.canonical
-        if self.device.type != "cpu":
-            return {k: n.precompute(c["means"], c["features"]) for k, n in self.nets.items()}
+        c, rows = self.canonical, self.rows
+        out = {}
         cache = self.avatar._first_layer  # share Avatar's cache: one copy of N x hidden per network
         for key, net in self.nets.items():
-            if key not in cache:
-                cache[key] = net.precompute(c["means"], c["features"])
-        return {key: cache[key] for key in self.nets}
+            a, b = rows.spans.get(key, (0, self.n))
+            if self.device.type != "cpu":
+                out[key] = net.precompute(c["means"][a:b], c["features"][a:b])
+                continue
+            ident = key if (a, b) == (0, self.n) else f"{key}[{a}:{b}]"
+            if ident not in cache:
+                cache[ident] = net.precompute(c["means"][a:b], c["features"][a:b])
+            out[key] = cache[ident]
+        return out
 
     @staticmethod
     def supported(avatar: Avatar) -> bool:
-        """True when the avatar's networks fit this path (dynamics without skip layers)."""
-        return avatar.dynamics is not None and not any(n.config.skips for n in avatar.dynamics.networks().values())
+        """True when the avatar has dynamics (every network description runs on this path)."""
+        return avatar.dynamics is not None
 
     @property
     def cache_bytes(self) -> int:
@@ -378,16 +272,18 @@ class FastPoser:
 
     # -- offsets ------------------------------------------------------------------------------------------
     @torch.no_grad()
-    def code_terms(self, z: np.ndarray) -> dict[str, tuple[torch.Tensor, torch.Tensor]]:
-        """Per network: the code's part of layer 0 and layer 0's bias plus it."""
+    def code_terms(self, z: np.ndarray) -> dict[str, tuple]:
+        """Per network: the frame's part of layer 0, layer 0's bias plus it, and the skip layers' constants."""
         if self.avatar.version != self.version:
             raise RuntimeError("the avatar was edited after this FastPoser was built (invalidate_caches); "
                                "build a new one")
         zt = torch.from_numpy(self.avatar.check_code(z)).to(self.device)
         terms = {}
+        chains = self._lanes[0].chains
         for key, net in self.nets.items():
             t = net.code_term(zt)
-            terms[key] = (t, net.layers[0].bias.detach() + t)
+            consts = chains[key].frame_constants(net.encode_code(zt)) if net.config.skips else None
+            terms[key] = (t, net.layers[0].bias.detach() + t, consts)
         return terms
 
     def _chunk_offsets(self, lane: _Lane, rows: RowSet, terms: dict, s: int, e: int,
@@ -396,23 +292,44 @@ class FastPoser:
         """Combined offsets (e - s, width) of rows s:e of `rows`, in `into` (on the poser's device) or else the
         lane's chunk buffer (None when `cancel()` turned true between two networks)."""
         out_rows = lane.offsets[: e - s] if into is None else into
+        out_rows.zero_()
         encoded: dict[tuple, torch.Tensor] = {}
-        for i, (key, col, width) in enumerate(self.layout.nets):
+        for i, (key, net) in enumerate(self.nets.items()):
             if i and cancel is not None and cancel():
                 return None
+            lo, hi = rows.span(key, s, e)
+            if lo == hi:
+                continue
             t0 = time.perf_counter()
-            net = self.nets[key]
+            chain = lane.chains[key]
             first = enc = None
             if rows.first is not None:
-                first = rows.first[key][s:e]
-            else:  # networks with the same input normalisation share one encoding per chunk
-                ident = self._enc_key[key]
+                a = rows.spans.get(key, (0, 0))[0]
+                first = rows.first[key][lo - a : hi - a]
+            if rows.first is None or net.config.skips:  # networks with the same encoding share one per chunk
+                ident = (self._enc_key[key], lo, hi)
                 if ident not in encoded:
-                    encoded[ident] = net.encode_gaussian(rows.means[s:e], rows.features[s:e])
+                    encoded[ident] = net.encode_gaussian(rows.means[lo:hi], rows.features[lo:hi])
                 enc = encoded[ident]
-            lane.chains[key].run(first, enc, *terms[key], lane.scratch, out_rows[:, col : col + width])
+            t, bias, consts = terms[key]
+            dest = lane.net_out[: (hi - lo) * net.config.out_dim].view(hi - lo, net.config.out_dim)
+            chain.run(first, enc, t, bias, lane.scratch, dest, consts)
+            self._route(key, dest, rows, lo, hi, out_rows[lo - s : hi - s])
             lane.busy[key] = lane.busy.get(key, 0.0) + time.perf_counter() - t0
         return out_rows
+
+    def _route(self, key: str, out: torch.Tensor, rows: RowSet, lo: int, hi: int, dest: torch.Tensor) -> None:
+        """Add network `key`'s outputs of rows lo:hi (scaled, times its blend weight) into offset rows `dest`."""
+        weight = rows.weights.get(key)
+        w = None if weight is None else weight[lo:hi, None]
+        for r in self.nets[key].config.routes or []:
+            c, _ = self.layout.blocks[r.attribute]
+            target = dest[:, c + r.to : c + r.to + r.width]
+            part = out[:, r.start : r.start + r.width]
+            if w is None:
+                target.add_(part, alpha=r.scale)
+            else:
+                target.addcmul_(part, w, value=r.scale)
 
     def _parallel(self, tasks: list[int], body: Callable[[_Lane, int], bool | None],
                   cancel: Callable[[], bool] | None = None, timings: dict[str, float] | None = None) -> bool:
@@ -461,16 +378,20 @@ class FastPoser:
         return max(1, min(self.chunk, -(-n // self.threads)))
 
     def subset(self, index: np.ndarray) -> RowSet:
-        """The rows `index` with their first-layer terms cached, for repeated `offsets(..., rows=)` calls."""
+        """The rows `index` with their first-layer terms cached, for repeated `offsets(..., rows=)` calls (every
+        network runs on every row of a subset; blend weights zero what a network does not reach)."""
         idx = torch.from_numpy(np.asarray(index, np.int64)).to(self.device)
         mu, f = self.rows.means.index_select(0, idx), self.rows.features.index_select(0, idx)
-        return RowSet(mu, f, {k: n.precompute(mu, f) for k, n in self.nets.items()}, np.asarray(index, np.int64))
+        weights = {k: w.index_select(0, idx) for k, w in self.rows.weights.items()}
+        return RowSet(mu, f, {k: n.precompute(mu, f) for k, n in self.nets.items()}, np.asarray(index, np.int64),
+                      weights)
 
     @torch.no_grad()
     def offsets(self, z: np.ndarray, out: torch.Tensor | None = None, rows: RowSet | None = None,
                 timings: dict[str, float] | None = None,
                 cancel: Callable[[], bool] | None = None) -> torch.Tensor | None:
-        """Combined offsets (N, or the rows of a `subset`, width) at code z, on the CPU (None if cancelled)."""
+        """Combined offsets (N, or the rows of a `subset`, width) at frame vector z, on the CPU (None if
+        cancelled)."""
         rows = self.rows if rows is None else rows
         if out is None:
             out = torch.empty(rows.n, self.layout.width)
@@ -513,7 +434,10 @@ class FastPoser:
             lane.busy["apply"] = lane.busy.get("apply", 0.0) + time.perf_counter() - t0
             return True
 
-        return self._parallel(self._starts(self.n), body, cancel, timings)
+        done = self._parallel(self._starts(self.n), body, cancel, timings)
+        if done:
+            self._finish(out)
+        return done
 
     @torch.no_grad()
     def apply_into(self, offsets: torch.Tensor, dest: dict[str, np.ndarray], chunk: int = 8192) -> None:
@@ -525,13 +449,21 @@ class FastPoser:
             self.apply_rows(offsets[s:e].to(self.device), s, e, out)
 
         self._parallel(list(range(0, self.n, chunk)), body)
+        self._finish(out)
+
+    def _finish(self, out: dict[str, torch.Tensor]) -> None:
+        """What needs every row first: the legacy rotation rule's norms over all Gaussians."""
+        if self.layout.blocks.get("rotation") and self.rules["rotation"] == "add_raw_legacy":
+            q = out["quats"]  # raw q + d from `apply_rows`
+            q.div_(q.norm(dim=0, keepdim=True).clamp_min(1e-12))
+            q.div_(q.norm(dim=1, keepdim=True).clamp_min(1e-12))
 
     def apply_rows(self, rows: torch.Tensor, s: int, e: int, out: dict[str, torch.Tensor]) -> None:
         """Apply combined offsets of rows s:e to the canonical cloud and write activated values into `out`.
 
         The same operations as `apply_offsets` followed by `to_posed_gaussians`; the small blocks (position,
         rotation, scale, opacity) are first gathered into attribute-major rows so every operation runs on
-        contiguous vectors.
+        contiguous vectors. Under the legacy rotation rule the raw sums are written (`_finish` normalises).
         """
         soa, lay = self._soa, self.layout
         if not self._small:
@@ -543,27 +475,35 @@ class FastPoser:
 
         def block(name: str) -> torch.Tensor | None:
             hit = self._small.get(name)
-            return None if hit is None else small[hit[0] : hit[0] + hit[1]]
+            return None if hit is None or small is None else small[hit[0] : hit[0] + hit[1]]
 
-        d, f = block("G.position"), block("F.position")
-        d = f if d is None else (d if f is None else d + f)
+        d = block("position")
         means = soa["means"][:, s:e]
         out["means"][s:e].copy_((means if d is None else ATTRIBUTE_OPS["position"].apply(means, d)).t())
-        q = soa["unit_quats"][:, s:e]
-        if (d := block("G.rotation")) is not None:
-            q = _compose(q, d) if self.rotation_op == "compose" else _unit(q + d)
-        out["quats"][s:e].copy_(_unit(q).t())
+        out["quats"][s:e].copy_(self._rotate(block("rotation"), s, e).t())
         log_s = soa["log_scales"][:, s:e]
-        if (d := block("G.scale")) is not None:
+        if (d := block("scale")) is not None:
             log_s = ATTRIBUTE_OPS["scale"].apply(log_s, d)
         out["scales"][s:e].copy_(torch.exp(log_s).t())
         op = soa["opacity_logits"][s:e]
-        if (d := block("G.opacity")) is not None:
+        if (d := block("opacity")) is not None:
             op = ATTRIBUTE_OPS["opacity"].apply(op, d[0])
         out["opacities"][s:e].copy_(torch.sigmoid(op))
-        self._add_wide(rows, s, e, "sh", out["sh"], lay.blocks.get("G.sh"))
+        self._add_wide(rows, s, e, "sh", out["sh"], lay.blocks.get("sh"))
         if "latent" in out and soa.get("latent") is not None:
-            self._add_wide(rows, s, e, "latent", out["latent"], lay.blocks.get("G.latent"))
+            self._add_wide(rows, s, e, "latent", out["latent"], lay.blocks.get("latent"))
+
+    def _rotate(self, d: torch.Tensor | None, s: int, e: int) -> torch.Tensor:
+        """Posed quaternions (4, m) of rows s:e by the rotation rule (raw sums under the legacy rule)."""
+        rule = self.rules["rotation"]
+        if d is None:
+            return self._soa["unit_quats"][:, s:e]
+        if rule == "compose":
+            return _unit(_compose(self._soa["unit_quats"][:, s:e], d))
+        if rule == "add":
+            return _unit(self._soa["unit_quats"][:, s:e] + d)
+        raw = self._soa["quats"][:, s:e] + d
+        return raw if rule == "add_raw_legacy" else _unit(raw)
 
     def _add_wide(self, rows: torch.Tensor, s: int, e: int, name: str, dest: torch.Tensor,
                   cols: tuple[int, int] | None) -> None:
@@ -583,10 +523,16 @@ class FastPoser:
 
 
 def _encoding_key(net: ConditionedMLP) -> tuple:
-    """Networks with equal keys encode (mu, f) identically."""
-    c = net.config
-    return (c.pos_freqs, c.feature_dim, tuple(net.input_shift[: 3 + c.feature_dim].tolist()),
-            tuple(net.input_scale[: 3 + c.feature_dim].tolist()))
+    """Networks with equal keys encode (mu, f) identically (same per-Gaussian inputs, order, encodings and
+    normalisation)."""
+    c, key, col = net.config, [], 0
+    for spec in c.specs:
+        w = c.raw_width(spec)
+        if spec.kind in PER_GAUSSIAN_INPUTS:
+            key.append((spec, tuple(net.input_shift[col : col + w].tolist()),
+                        tuple(net.input_scale[col : col + w].tolist())))
+        col += w
+    return tuple(key)
 
 
 def _unit(q: torch.Tensor) -> torch.Tensor:
@@ -606,8 +552,8 @@ def _compose(c_unit: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
 
 def _attribute_major(canonical: dict[str, torch.Tensor | None]) -> dict[str, torch.Tensor]:
     """Canonical attributes with the small ones transposed to (width, N), the wide ones flattened (N, width)."""
-    soa = {k: canonical[k].t().contiguous() for k in ("means", "log_scales")}
-    soa["unit_quats"] = _unit(canonical["quats"].t().contiguous())
+    soa = {k: canonical[k].t().contiguous() for k in ("means", "log_scales", "quats")}
+    soa["unit_quats"] = _unit(soa["quats"].clone())
     soa["opacity_logits"] = canonical["opacity_logits"].contiguous()
     soa["sh"] = canonical["sh"].reshape(canonical["sh"].shape[0], -1)
     if canonical.get("latent") is not None:

@@ -17,14 +17,13 @@ moves centres, rotations, scales and turns the SH with the head (`sh.rotate_sh`)
 from __future__ import annotations
 
 import numpy as np
-import torch
 
 from npga_core.camera.cameras import Camera
 from npga_core.files.sequences import ExpressionSequence
-from npga_core.model.dynamics import quat_multiply
-from npga_core.model.gaussians import PosedGaussians
-from npga_core.model.rotations import matrix_from_rotvec, quat_from_matrix, similarity, similarity_parts
-from npga_core.model.sh import rotate_sh
+from npga_core.model.rigid import transform_posed
+from npga_core.model.rotations import matrix_from_rotvec, similarity
+
+__all__ = ["head_transform", "head_transforms", "pose_matrix", "posed_camera", "transform_posed"]
 
 
 def pose_matrix(rotation: np.ndarray | None = None, translation: np.ndarray | None = None,
@@ -68,17 +67,3 @@ def posed_camera(camera: Camera, transform: np.ndarray) -> Camera:
     """The camera that shows the Gaussians moved by `transform` (4x4) when given the unmoved ones."""
     return Camera(camera.world_to_camera @ transform, camera.fx, camera.fy, camera.cx, camera.cy,
                   camera.width, camera.height)
-
-
-def transform_posed(posed: PosedGaussians, transform: np.ndarray) -> PosedGaussians:
-    """The Gaussians moved by `transform` (4x4, s R with s > 0, plus t): centres, rotations, scales, SH."""
-    m = np.asarray(transform, np.float64)
-    s, r, _ = similarity_parts(m)
-    if not s > 0:
-        raise ValueError("a head transform must be a scaled rotation (positive determinant)")
-    q_r = torch.from_numpy(quat_from_matrix(r))
-    quats = quat_multiply(q_r, torch.from_numpy(np.asarray(posed.quats, np.float64))).numpy()  # q' = q_R q
-    means = np.asarray(posed.means, np.float64) @ m[:3, :3].T + m[:3, 3]
-    return PosedGaussians(means.astype(np.float32), quats.astype(np.float32),
-                          (s * np.asarray(posed.scales, np.float64)).astype(np.float32), posed.opacities,
-                          rotate_sh(posed.sh, r), posed.latent)

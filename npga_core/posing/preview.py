@@ -292,8 +292,11 @@ class ProbeNets:
     """
 
     def __init__(self, poser: FastPoser, probes: np.ndarray, precision: str = "auto"):
+        plain = not any(n.config.skips for n in poser.nets.values())  # the bf16 chain has no skip layers
         if precision == "auto":
-            precision = "bf16" if poser.device.type == "cpu" and bf16_speedup() >= 1.5 else "fp32"
+            precision = "bf16" if poser.device.type == "cpu" and plain and bf16_speedup() >= 1.5 else "fp32"
+        if precision == "bf16" and not plain:
+            raise ValueError("bf16 probes need networks without skip layers")
         if precision not in ("fp32", "bf16"):
             raise ValueError(f"precision must be 'auto', 'fp32' or 'bf16', got {precision!r}")
         self.poser, self.precision = poser, precision
@@ -302,7 +305,8 @@ class ProbeNets:
         if precision == "bf16":
             for key, chain in poser._lanes[0].chains.items():
                 self._layers[key] = ([w.to(torch.bfloat16) for w in chain.weights],
-                                     [b.to(torch.bfloat16) for b in chain.biases], chain.relu, chain.act)
+                                     [b.to(torch.bfloat16) for b in chain.biases], chain.relu, chain.act,
+                                     poser.nets[key]._out_act)
 
     @property
     def n(self) -> int:
@@ -319,15 +323,17 @@ class ProbeNets:
 
         def body(lane, s: int) -> None:
             e = min(self.n, s + step)
-            for key, col, width in self.poser.layout.nets:
-                weights, biases, relu, act = self._layers[key]
+            out[s:e].zero_()
+            for key in self.poser.nets:
+                weights, biases, relu, act, out_act = self._layers[key]
                 h = (first[key][s:e] + terms[key][0]).to(torch.bfloat16)
                 for i in range(len(weights)):
                     if i:
                         h = torch.addmm(biases[i], h, weights[i])
                     if i < len(weights) - 1:
                         h = h.clamp_min_(0.0) if relu else act(h)
-                out[s:e, col : col + width].copy_(h)
+                h = h.float()
+                self.poser._route(key, h if out_act is None else out_act(h), self.rows, s, e, out[s:e])
 
         self.poser._parallel(list(range(0, self.n, step)), body)
         return out

@@ -16,6 +16,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "render": ("npga_view.cli.render", "render an avatar headless to PNG or MP4"),
     "bench": ("npga_view.cli.bench", "measure the dynamics (exact, preview, playback) on this machine"),
     "export": ("npga_view.cli.export", "export the avatar posed at one expression as a 3DGS .ply"),
+    "import": ("npga_view.cli.importer", "convert another method's checkpoint (gha) into an .npga avatar"),
 }
 DEFAULT = "view"
 USAGE = "npga-view [AVATAR] [viewer options] | npga-view COMMAND [options]"

@@ -1,0 +1,163 @@
+"""The `dynamics` and `cnn` sections of an `.npga` header: parsing, checking, the tensors they imply, writing.
+
+Format version 1 holds NPGA's two networks, ``dynamics.F`` and ``dynamics.G`` (fixed inputs mu, f, z) and a
+``rotation_op``. Version 2 holds any number of named networks (``dynamics.networks``, in evaluation order),
+each with its inputs, activations, skips, routes and blend weight, plus the attribute composition ``rules``, the
+``condition`` part of the frame vector and how the blend weights were made (``blend``). See docs/FORMAT.md.
+"""
+
+from __future__ import annotations
+
+import re
+from typing import Any
+
+import numpy as np
+import torch
+
+from npga_core.model.cnn import CNNConfig, ScreenCNN
+from npga_core.model.dynamics import RULES, ConditionedMLP, Dynamics, MLPConfig
+
+MAX_NETWORKS = 16
+NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,31}")
+#: Bound on the multiply-adds per Gaussian of all networks together (GHA's default sizes need about 0.9e6).
+MAX_MACS_PER_GAUSSIAN = 2e7
+
+
+class HeaderError(ValueError):
+    """A problem with the dynamics or CNN sections of a header."""
+
+
+def network_configs(dyn: dict, version: int) -> dict[str, MLPConfig]:
+    """Name -> architecture of every network of a `dynamics` section (HeaderError if malformed)."""
+    if version == 1:
+        raw = {k: dyn.get(k) for k in ("F", "G") if dyn.get(k) is not None}
+        if not raw:
+            raise HeaderError("dynamics has neither F nor G")
+    else:
+        raw = dyn.get("networks")
+        if not isinstance(raw, dict) or not raw:
+            raise HeaderError("dynamics.networks must be a non-empty object")
+        if len(raw) > MAX_NETWORKS:
+            raise HeaderError(f"dynamics has {len(raw)} networks (at most {MAX_NETWORKS})")
+    out = {}
+    for key, cfg in raw.items():
+        if not isinstance(key, str) or not NAME.fullmatch(key):
+            raise HeaderError(f"network name {key!r} is not a short identifier")
+        if not isinstance(cfg, dict):
+            raise HeaderError(f"dynamics.{key} must be an object")
+        try:
+            out[key] = MLPConfig.from_json(cfg)
+        except ValueError as e:
+            raise HeaderError(f"dynamics.{key}: {e}") from None
+    if version == 1 and "F" in out and [n for n, _ in out["F"].outputs] != ["position"]:
+        raise HeaderError("dynamics.F must output exactly the 'position' block")
+    macs = sum(c.flops_per_gaussian() / 2 for c in out.values())
+    if macs > MAX_MACS_PER_GAUSSIAN:
+        raise HeaderError(f"the networks need {macs:.3g} multiply-adds per Gaussian (at most "
+                          f"{MAX_MACS_PER_GAUSSIAN:.0e})")
+    return out
+
+
+def rules_of(dyn: dict, version: int) -> dict[str, str]:
+    """The attribute composition rules of a `dynamics` section."""
+    if version == 1:
+        op = dyn.get("rotation_op", "compose")
+        if op not in ("compose", "add"):
+            raise HeaderError(f"dynamics.rotation_op {op!r} is not 'compose' or 'add'")
+        return {"rotation": op}
+    rules = dyn.get("rules", {})
+    if not isinstance(rules, dict):
+        raise HeaderError("dynamics.rules must be an object")
+    for a, r in rules.items():
+        if a not in RULES or r not in RULES[a]:
+            raise HeaderError(f"dynamics.rules: {a!r} -> {r!r} is not a known attribute rule")
+    return dict(rules)
+
+
+def check_dynamics(dyn: dict, version: int) -> None:
+    """Check a `dynamics` section as far as the header alone allows (HeaderError)."""
+    configs = network_configs(dyn, version)
+    rules_of(dyn, version)
+    if version >= 2:
+        cond = dyn.get("condition")
+        if cond is not None and not isinstance(cond, dict):
+            raise HeaderError("dynamics.condition must be an object or null")
+        blend = dyn.get("blend", {})
+        if not isinstance(blend, dict) or not all(isinstance(v, str) for v in blend.values()):
+            raise HeaderError("dynamics.blend must map blend names to descriptions")
+        if any(c.condition_dim for c in configs.values()) and not cond:
+            raise HeaderError("the networks take a condition, but dynamics.condition does not describe it")
+
+
+def dynamics_tensors(dyn: dict, version: int) -> dict[str, tuple[str, tuple[int, ...]]]:
+    """name -> (dtype, shape) of every tensor of a `dynamics` section."""
+    spec: dict[str, tuple[str, tuple[int, ...]]] = {}
+    for key, cfg in network_configs(dyn, version).items():
+        spec[f"dynamics.{key}.input_shift"] = ("float32", (cfg.raw_input_dim,))
+        spec[f"dynamics.{key}.input_scale"] = ("float32", (cfg.raw_input_dim,))
+        for i, (o, fan_in) in enumerate(cfg.layer_shapes()):
+            spec[f"dynamics.{key}.layers.{i}.weight"] = ("float32", (o, fan_in))
+            spec[f"dynamics.{key}.layers.{i}.bias"] = ("float32", (o,))
+    return spec
+
+
+def cnn_tensors(cnn: dict) -> dict[str, tuple[str, tuple[int, ...]]]:
+    """name -> (dtype, shape) of every tensor of a `cnn` section."""
+    spec: dict[str, tuple[str, tuple[int, ...]]] = {}
+    for i, layer in enumerate(CNNConfig.from_json(cnn).layers):
+        spec[f"cnn.layers.{i}.weight"] = ("float32", (layer.out_channels, layer.in_channels, layer.kernel,
+                                                      layer.kernel))
+        if layer.bias:
+            spec[f"cnn.layers.{i}.bias"] = ("float32", (layer.out_channels,))
+    return spec
+
+
+def build_dynamics(dyn: dict, version: int, t: dict[str, np.ndarray]) -> Dynamics:
+    """The `Dynamics` of a checked `dynamics` section with its tensors."""
+    nets = {}
+    for key, cfg in network_configs(dyn, version).items():
+        net = ConditionedMLP(cfg)
+        prefix = f"dynamics.{key}."
+        state = {name[len(prefix):]: torch.from_numpy(np.array(a)) for name, a in t.items() if name.startswith(prefix)}
+        net.load_state_dict(state, strict=True)
+        nets[key] = net.eval()
+    return Dynamics(networks=nets, rules=rules_of(dyn, version),
+                    condition=dyn.get("condition") if version >= 2 else None,
+                    blend_notes=dyn.get("blend", {}) if version >= 2 else None)
+
+
+def build_cnn(cnn: dict, t: dict[str, np.ndarray]) -> ScreenCNN:
+    """The `ScreenCNN` of a checked `cnn` section with its tensors."""
+    model = ScreenCNN(CNNConfig.from_json(cnn))
+    state = {}
+    for i, layer in enumerate(model.config.layers):
+        state[f"convs.{i}.weight"] = torch.from_numpy(np.array(t[f"cnn.layers.{i}.weight"]))
+        if layer.bias:
+            state[f"convs.{i}.bias"] = torch.from_numpy(np.array(t[f"cnn.layers.{i}.bias"]))
+    model.load_state_dict(state, strict=True)
+    return model.eval()
+
+
+def dynamics_section(dyn: Dynamics, version: int) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """The `dynamics` header section of `dyn` in a format version, and its arrays."""
+    arrays: dict[str, np.ndarray] = {}
+    for key, net in dyn.networks().items():
+        for name, tensor in net.state_dict().items():
+            arrays[f"dynamics.{key}.{name}"] = tensor.detach().cpu().numpy()
+    if version == 1:
+        section: dict[str, Any] = {"rotation_op": dyn.rotation_op, "F": None, "G": None}
+        for key, net in dyn.networks().items():
+            section[key] = net.config.to_json()
+        return section, arrays
+    return {"rules": dict(dyn.rules), "condition": dyn.condition, "blend": dict(dyn.blend_notes),
+            "networks": {key: net.config.to_json() for key, net in dyn.networks().items()}}, arrays
+
+
+def cnn_section(cnn: ScreenCNN) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
+    """The `cnn` header section and its arrays."""
+    arrays = {}
+    for i, conv in enumerate(cnn.convs):
+        arrays[f"cnn.layers.{i}.weight"] = conv.weight.detach().cpu().numpy()
+        if conv.bias is not None:
+            arrays[f"cnn.layers.{i}.bias"] = conv.bias.detach().cpu().numpy()
+    return cnn.config.to_json(), arrays

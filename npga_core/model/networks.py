@@ -1,0 +1,465 @@
+"""One dynamics network, described by data: its inputs, layers, activations, skips and where its outputs go.
+
+A network (`MLPConfig`) is evaluated per Gaussian. Its raw input is the concatenation, in the declared order,
+of some of: the canonical position mu (3), the per-Gaussian features f (F), the expression code (D_e) and a
+second per-frame condition (D_c, e.g. Gaussian-Head-Avatar's head pose). Each is normalised as
+``(x - input_shift) * input_scale`` and position and condition may be expanded by a positional encoding
+(`ENCODINGS`). Then `depth` linear layers with the hidden activation between them (ReLU, leaky ReLU with its
+slope, ...), an optional output activation (tanh), and skip layers that re-append the encoded input after the
+hidden vector (``[h, x]``). The output columns are routed to attributes (`Route`): a column range, the
+attribute's first column it lands on, and a scale.
+
+NPGA's F and G are one case: inputs (mu, f, z), ReLU, no skips, no output activation, routes of scale 1.
+"""
+
+from __future__ import annotations
+
+import math
+from collections.abc import Callable
+from dataclasses import dataclass, field
+
+import torch
+from torch import nn
+
+
+def strict_int(v: object, what: str) -> int:
+    """`v` if it is a JSON integer (not a bool, float or string), else ValueError."""
+    if isinstance(v, bool) or not isinstance(v, int):
+        raise ValueError(f"{what} must be an integer, got {v!r}")
+    return v
+
+
+def strict_str(v: object, what: str) -> str:
+    """`v` if it is a string, else ValueError."""
+    if not isinstance(v, str):
+        raise ValueError(f"{what} must be a string, got {v!r}")
+    return v
+
+
+def strict_float(v: object, what: str, limit: float = 1e6) -> float:
+    """`v` as a float if it is a finite JSON number within +-limit, else ValueError."""
+    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or abs(v) > limit:
+        raise ValueError(f"{what} must be a finite number within +-{limit:g}, got {v!r}")
+    return float(v)
+
+
+MAX_POS_FREQS = 20
+MAX_WIDTH = 65536
+
+ACTIVATIONS: dict[str, Callable[[torch.Tensor], torch.Tensor]] = {
+    "relu": torch.relu,
+    "silu": nn.functional.silu,
+    "gelu": nn.functional.gelu,
+    "softplus": nn.functional.softplus,
+    "tanh": torch.tanh,
+    "elu": nn.functional.elu,
+    "leaky_relu": nn.functional.leaky_relu,
+    "sigmoid": torch.sigmoid,
+}
+
+#: The attributes an offset can act on, in canonical order.
+ATTRIBUTES: tuple[str, ...] = ("position", "rotation", "scale", "opacity", "sh", "latent")
+
+#: Input kinds: per-Gaussian ones (position, features) and per-frame ones (code, condition).
+INPUT_KINDS: tuple[str, ...] = ("position", "features", "code", "condition")
+PER_GAUSSIAN_INPUTS = frozenset({"position", "features"})
+
+#: Positional encodings: [x, sin(w_0 x), cos(w_0 x), ..., sin(w_(L-1) x), cos(w_(L-1) x)] with w_k = 2^k pi
+#: ("nerf", NPGA's files of version 1) or w_k = 2^k (as Gaussian-Head-Avatar's `get_embedder`); "none" is x.
+ENCODINGS = {"none": 0.0, "nerf": math.pi, "gha": 1.0}
+
+
+def activation(name: str, slope: float = 0.01) -> Callable[[torch.Tensor], torch.Tensor]:
+    """The activation function `name` (leaky ReLU with `slope`)."""
+    if name == "leaky_relu":
+        return lambda x: nn.functional.leaky_relu(x, slope)
+    return ACTIVATIONS[name]
+
+
+@dataclass(frozen=True)
+class InputSpec:
+    """One input of a network: its kind and, for position and condition, a positional encoding."""
+
+    kind: str
+    encoding: str = "none"
+    freqs: int = 0
+
+    def encoded_width(self, raw: int) -> int:
+        return raw * (1 + 2 * self.freqs) if self.encoding != "none" else raw
+
+    def to_json(self) -> dict:
+        d: dict = {"kind": self.kind}
+        if self.encoding != "none":
+            d.update(encoding=self.encoding, freqs=self.freqs)
+        return d
+
+    @staticmethod
+    def from_json(d: object) -> InputSpec:
+        if not isinstance(d, dict):
+            raise ValueError(f"an input must be an object, got {d!r}")
+        kind = strict_str(d.get("kind"), "input kind")
+        if kind not in INPUT_KINDS:
+            raise ValueError(f"unknown input kind {kind!r} (known: {', '.join(INPUT_KINDS)})")
+        enc = strict_str(d.get("encoding", "none"), "encoding")
+        if enc not in ENCODINGS:
+            raise ValueError(f"unknown encoding {enc!r} (known: {', '.join(ENCODINGS)})")
+        freqs = strict_int(d.get("freqs", 0), "freqs")
+        if enc != "none" and kind not in ("position", "condition"):
+            raise ValueError(f"a positional encoding applies to position and condition, not {kind}")
+        if not 0 <= freqs <= MAX_POS_FREQS or (enc == "none" and freqs):
+            raise ValueError(f"freqs {freqs} outside 0..{MAX_POS_FREQS} (or given without an encoding)")
+        return InputSpec(kind, enc, freqs)
+
+
+def encode(x: torch.Tensor, spec: InputSpec) -> torch.Tensor:
+    """The positional encoding of `x` (..., w) by `spec` (x itself without one)."""
+    if spec.encoding == "none":
+        return x
+    base = ENCODINGS[spec.encoding]
+    parts = [x]
+    for k in range(spec.freqs):
+        w = (2.0**k) * base
+        parts += [torch.sin(w * x), torch.cos(w * x)]
+    return torch.cat(parts, dim=-1)
+
+
+@dataclass(frozen=True)
+class Route:
+    """Output columns [start, start + width) of a network, times `scale`, added to columns [to, to + width) of
+    `attribute`'s offset."""
+
+    attribute: str
+    start: int
+    width: int
+    to: int = 0
+    scale: float = 1.0
+
+    def to_json(self) -> dict:
+        return {"attribute": self.attribute, "from": self.start, "width": self.width, "to": self.to,
+                "scale": self.scale}
+
+    @staticmethod
+    def from_json(d: object) -> Route:
+        if not isinstance(d, dict):
+            raise ValueError(f"a route must be an object, got {d!r}")
+        attr = strict_str(d.get("attribute"), "route attribute")
+        if attr not in ATTRIBUTES:
+            raise ValueError(f"unknown attribute {attr!r} (known: {', '.join(ATTRIBUTES)})")
+        return Route(attr, strict_int(d.get("from"), "route from"), strict_int(d.get("width"), "route width"),
+                     strict_int(d.get("to", 0), "route to"), strict_float(d.get("scale", 1.0), "route scale"))
+
+
+def _v1_inputs(pos_freqs: int) -> list[InputSpec]:
+    return [InputSpec("position", "nerf" if pos_freqs else "none", pos_freqs), InputSpec("features"),
+            InputSpec("code")]
+
+
+@dataclass
+class MLPConfig:
+    """Architecture of one network, as stored in the checkpoint header (see the module docstring).
+
+    `outputs` (named blocks of columns, version 1) is kept for NPGA's F and G; `routes` is derived from it
+    when not given. `code_dim` is the width of the expression-code input, `condition_dim` of the condition.
+    """
+
+    feature_dim: int
+    code_dim: int
+    outputs: list[tuple[str, int]] = field(default_factory=list)
+    hidden: int = 256
+    depth: int = 6
+    activation: str = "relu"
+    pos_freqs: int = 0
+    skips: list[int] = field(default_factory=list)
+    inputs: list[InputSpec] | None = None
+    condition_dim: int = 0
+    slope: float = 0.01
+    output_activation: str = "none"
+    routes: list[Route] | None = None
+    out_width: int | None = None
+    blend: str | None = None  # name of the per-Gaussian weight this network's outputs are multiplied by
+
+    def __post_init__(self) -> None:
+        if self.inputs is None:
+            self.inputs = _v1_inputs(self.pos_freqs)
+        if self.routes is None:
+            routes, col = [], 0
+            for name, width in self.outputs:
+                routes.append(Route(name, col, width))
+                col += width
+            self.routes = routes
+        if self.out_width is None:
+            self.out_width = sum(w for _, w in self.outputs) if self.outputs else \
+                max((r.start + r.width for r in self.routes), default=0)
+
+    # -- widths ----------------------------------------------------------------------------------------
+    def raw_width(self, spec: InputSpec) -> int:
+        return {"position": 3, "features": self.feature_dim, "code": self.code_dim,
+                "condition": self.condition_dim}[spec.kind]
+
+    @property
+    def specs(self) -> list[InputSpec]:
+        assert self.inputs is not None
+        return self.inputs
+
+    @property
+    def raw_input_dim(self) -> int:
+        return sum(self.raw_width(s) for s in self.specs)
+
+    @property
+    def encoded_input_dim(self) -> int:
+        return sum(s.encoded_width(self.raw_width(s)) for s in self.specs)
+
+    @property
+    def mu_encoded_dim(self) -> int:
+        return sum(s.encoded_width(3) for s in self.specs if s.kind == "position")
+
+    @property
+    def gaussian_encoded_dim(self) -> int:
+        """Width of the per-Gaussian part of the encoded input."""
+        return sum(s.encoded_width(self.raw_width(s)) for s in self.specs if s.kind in PER_GAUSSIAN_INPUTS)
+
+    @property
+    def out_dim(self) -> int:
+        assert self.out_width is not None
+        return self.out_width
+
+    def encoded_columns(self) -> tuple[list[int], list[int]]:
+        """Columns of the encoded input that are per Gaussian, and those that are per frame."""
+        g, c, col = [], [], 0
+        for s in self.specs:
+            w = s.encoded_width(self.raw_width(s))
+            (g if s.kind in PER_GAUSSIAN_INPUTS else c).extend(range(col, col + w))
+            col += w
+        return g, c
+
+    def layer_shapes(self) -> list[tuple[int, int]]:
+        """(out, in) of each linear layer's weight."""
+        shapes = []
+        for i in range(self.depth):
+            fan_in = self.encoded_input_dim if i == 0 else self.hidden
+            if i in self.skips:
+                fan_in += self.encoded_input_dim
+            fan_out = self.out_dim if i == self.depth - 1 else self.hidden
+            shapes.append((fan_out, fan_in))
+        return shapes
+
+    def flops_per_gaussian(self) -> int:
+        """Multiply-adds x2 of one forward pass per Gaussian (all layers)."""
+        return sum(2 * o * i for o, i in self.layer_shapes())
+
+    @property
+    def simple(self) -> bool:
+        """Version 1 expressible: inputs (mu, f, z), no condition, output blocks of scale 1, no blend."""
+        return (self.specs == _v1_inputs(self.pos_freqs) and self.condition_dim == 0 and bool(self.outputs)
+                and self.output_activation == "none" and self.blend is None and self.slope == 0.01)
+
+    def validate(self) -> None:
+        """Raise ValueError if the configuration is inconsistent."""
+        if self.depth < 1:
+            raise ValueError(f"depth must be >= 1, got {self.depth}")
+        for name in ("hidden", "feature_dim", "code_dim", "condition_dim", "pos_freqs", "out_dim"):
+            v = getattr(self, name)
+            if not 0 <= v <= MAX_WIDTH:
+                raise ValueError(f"{name} {v} outside 0..{MAX_WIDTH}")
+        if self.hidden < 1 or self.depth > 64:
+            raise ValueError("hidden must be >= 1 and depth at most 64")
+        if self.pos_freqs > MAX_POS_FREQS:
+            raise ValueError(f"pos_freqs {self.pos_freqs} exceeds {MAX_POS_FREQS} (float32 sin/cos lose all meaning)")
+        if self.activation not in ACTIVATIONS:
+            raise ValueError(f"unknown activation {self.activation!r} (known: {', '.join(ACTIVATIONS)})")
+        if self.output_activation != "none" and self.output_activation not in ACTIVATIONS:
+            raise ValueError(f"unknown output activation {self.output_activation!r} (none or an activation)")
+        if not 0.0 <= self.slope <= 1.0:
+            raise ValueError(f"leaky ReLU slope {self.slope} outside 0..1")
+        for s in self.skips:
+            if not 1 <= s < self.depth:
+                raise ValueError(f"skip layer {s} outside 1..{self.depth - 1}")
+        kinds = [s.kind for s in self.specs]
+        if len(set(kinds)) != len(kinds) or not kinds:
+            raise ValueError(f"inputs {kinds} must be distinct and not empty")
+        if "condition" in kinds and self.condition_dim == 0:
+            raise ValueError("a condition input needs condition_dim > 0")
+        seen = set()
+        for name, width in self.outputs:
+            if name not in ATTRIBUTES:
+                raise ValueError(f"unknown output block {name!r} (known: {', '.join(ATTRIBUTES)})")
+            if name in seen:
+                raise ValueError(f"output block {name!r} listed twice")
+            if width < 1:
+                raise ValueError(f"output block {name!r} has width {width}")
+            seen.add(name)
+        if not self.routes:
+            raise ValueError("no output blocks")
+        for r in self.routes:
+            if r.width < 1 or r.start < 0 or r.to < 0 or r.start + r.width > self.out_dim:
+                raise ValueError(f"route to {r.attribute} takes columns {r.start}..{r.start + r.width}, "
+                                 f"the network has {self.out_dim}")
+
+    def to_json(self) -> dict:
+        d: dict = {"feature_dim": self.feature_dim, "code_dim": self.code_dim}
+        if self.simple:
+            d["outputs"] = [[n, w] for n, w in self.outputs]
+        d.update(hidden=self.hidden, depth=self.depth, activation=self.activation, pos_freqs=self.pos_freqs,
+                 skips=list(self.skips))
+        if not self.simple:
+            d.update(inputs=[s.to_json() for s in self.specs], condition_dim=self.condition_dim, slope=self.slope,
+                     output_activation=self.output_activation, out_dim=self.out_dim,
+                     routes=[r.to_json() for r in self.routes or []], blend=self.blend)
+        return d
+
+    @staticmethod
+    def from_json(d: dict) -> MLPConfig:
+        try:
+            blend = d.get("blend")
+            cfg = MLPConfig(
+                feature_dim=strict_int(d["feature_dim"], "feature_dim"),
+                code_dim=strict_int(d["code_dim"], "code_dim"),
+                outputs=[(strict_str(n, "output name"), strict_int(w, f"width of {n}"))
+                         for n, w in d.get("outputs", [])],
+                hidden=strict_int(d.get("hidden", 256), "hidden"),
+                depth=strict_int(d.get("depth", 6), "depth"),
+                activation=strict_str(d.get("activation", "relu"), "activation"),
+                pos_freqs=strict_int(d.get("pos_freqs", 0), "pos_freqs"),
+                skips=[strict_int(s, "skip") for s in d.get("skips", [])],
+                inputs=[InputSpec.from_json(s) for s in d["inputs"]] if "inputs" in d else None,
+                condition_dim=strict_int(d.get("condition_dim", 0), "condition_dim"),
+                slope=strict_float(d.get("slope", 0.01), "slope"),
+                output_activation=strict_str(d.get("output_activation", "none"), "output_activation"),
+                routes=[Route.from_json(r) for r in d["routes"]] if "routes" in d else None,
+                out_width=strict_int(d["out_dim"], "out_dim") if "out_dim" in d else None,
+                blend=None if blend is None else strict_str(blend, "blend"),
+            )
+            if "outputs" not in d and "routes" not in d:
+                raise ValueError("neither outputs nor routes given")
+        except (KeyError, TypeError, ValueError) as e:
+            raise ValueError(f"malformed MLP architecture: {e}") from None
+        cfg.validate()
+        return cfg
+
+
+class ConditionedMLP(nn.Module):
+    """One network: encoded inputs -> output columns (see the module docstring).
+
+    `forward` is the plain reference. `precompute` + `evaluate` is the generic fast path: the per-Gaussian part
+    of the first layer (bias included) is computed once; per frame only a (hidden,) vector is added.
+    """
+
+    def __init__(self, config: MLPConfig):
+        super().__init__()
+        config.validate()
+        self.config = config
+        self.layers = nn.ModuleList(nn.Linear(i, o) for o, i in config.layer_shapes())
+        self.register_buffer("input_shift", torch.zeros(config.raw_input_dim))
+        self.register_buffer("input_scale", torch.ones(config.raw_input_dim))
+        self._act = activation(config.activation, config.slope)
+        self._out_act = None if config.output_activation == "none" else activation(config.output_activation)
+        g, c = config.encoded_columns()
+        self._gcols = torch.tensor(g, dtype=torch.int64)
+        self._ccols = torch.tensor(c, dtype=torch.int64)
+        self._contiguous = g == list(range(len(g))) and c == list(range(len(g), len(g) + len(c)))
+
+    # -- input conditioning -------------------------------------------------------------------------
+    def _encode(self, parts: dict[str, torch.Tensor], per_gaussian: bool) -> torch.Tensor:
+        """Normalised, encoded inputs of one side (per Gaussian or per frame), in declared order."""
+        out, col = [], 0
+        for s in self.config.specs:
+            w = self.config.raw_width(s)
+            if (s.kind in PER_GAUSSIAN_INPUTS) == per_gaussian:
+                x = (parts[s.kind] - self.input_shift[col : col + w]) * self.input_scale[col : col + w]
+                out.append(encode(x, s))
+            col += w
+        if not out:
+            lead = next(iter(parts.values())).shape[:-1]
+            return torch.zeros(*lead, 0)
+        return torch.cat(out, dim=-1)
+
+    def encode_gaussian(self, mu: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
+        """Normalised, encoded per-Gaussian inputs (N, gaussian_encoded_dim)."""
+        return self._encode({"position": mu, "features": f}, True)
+
+    def encode_code(self, z: torch.Tensor) -> torch.Tensor:
+        """Normalised, encoded per-frame inputs of a frame vector z = [code, condition] (..., width)."""
+        c = self.config
+        total = z.shape[-1]
+        return self._encode({"code": z[..., : total - _cond_width(c, total)],
+                             "condition": z[..., total - _cond_width(c, total):]}, False)
+
+    def assemble(self, g: torch.Tensor, zc: torch.Tensor) -> torch.Tensor:
+        """The full encoded input from its per-Gaussian (N, .) and per-frame (N, .) parts, in declared order."""
+        if self._contiguous:
+            return torch.cat([g, zc], dim=-1)
+        x = torch.empty(g.shape[0], g.shape[1] + zc.shape[1], dtype=g.dtype)
+        x[:, self._gcols] = g
+        x[:, self._ccols] = zc
+        return x
+
+    # -- reference forward --------------------------------------------------------------------------
+    def forward(self, mu: torch.Tensor, f: torch.Tensor, z: torch.Tensor) -> torch.Tensor:
+        """Plain forward. z (the frame vector) is (D,) shared by all Gaussians or (N, D)."""
+        g = self.encode_gaussian(mu, f)
+        zc = self.encode_code(z)
+        if zc.dim() == 1:
+            zc = zc.expand(g.shape[0], -1)
+        x = self.assemble(g, zc)
+        h = x
+        for i, layer in enumerate(self.layers):
+            if i in self.config.skips:
+                h = torch.cat([h, x], dim=-1)
+            h = layer(h)
+            if i < len(self.layers) - 1:
+                h = self._act(h)
+        return h if self._out_act is None else self._out_act(h)
+
+    # -- generic fast path -------------------------------------------------------------------------
+    def split_weight(self, i: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
+        """Layer i's weight as (per-Gaussian input columns, per-frame input columns, hidden columns or None)."""
+        w = self.layers[i].weight.detach()
+        hid = None
+        if i > 0:
+            hid, w = w[:, : self.config.hidden], w[:, self.config.hidden :]
+        return w[:, self._gcols], w[:, self._ccols], hid
+
+    @torch.no_grad()
+    def precompute(self, mu: torch.Tensor, f: torch.Tensor) -> torch.Tensor:
+        """Per-Gaussian part of the first layer, bias included: (N, width of layer 0)."""
+        g = self.encode_gaussian(mu, f)
+        wg, _, _ = self.split_weight(0)
+        return torch.addmm(self.layers[0].bias, g, wg.t())
+
+    @torch.no_grad()
+    def code_term(self, z: torch.Tensor) -> torch.Tensor:
+        """Per-frame part of the first layer for one frame vector z (D,): (width of layer 0,)."""
+        _, wc, _ = self.split_weight(0)
+        return wc @ self.encode_code(z)
+
+    @torch.no_grad()
+    def evaluate(self, first: torch.Tensor, z: torch.Tensor, out: torch.Tensor | None = None, chunk: int = 2048,
+                 gaussian_inputs: tuple[torch.Tensor, torch.Tensor] | None = None) -> torch.Tensor:
+        """Outputs for all Gaussians at frame vector z from `precompute`'s result, in chunks.
+
+        `gaussian_inputs` (mu, f) is needed only when the architecture has skip layers.
+        """
+        c = self.config
+        n = first.shape[0]
+        if out is None:
+            out = torch.empty(n, c.out_dim, dtype=first.dtype)
+        zt = self.code_term(z)
+        zc = self.encode_code(z)
+        for s in range(0, n, chunk):
+            e = min(n, s + chunk)
+            h = first[s:e] + zt
+            for i in range(1, c.depth):
+                h = self._act(h)
+                inp = h
+                if i in c.skips:
+                    mu, f = gaussian_inputs  # type: ignore[misc]
+                    x = self.assemble(self.encode_gaussian(mu[s:e], f[s:e]), zc.expand(e - s, -1))
+                    inp = torch.cat([h, x], dim=-1)
+                h = self.layers[i](inp)
+            out[s:e] = h if self._out_act is None else self._out_act(h)
+        return out
+
+
+def _cond_width(c: MLPConfig, total: int) -> int:
+    """Columns of a frame vector of width `total` that are the condition (its last condition_dim)."""
+    return min(c.condition_dim, total)

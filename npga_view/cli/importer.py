@@ -1,0 +1,41 @@
+"""`npga-view import gha CKPT_DIR [--config GHA_YAML] [--legacy-rotation] --out AVATAR.npga`: another method's
+checkpoint as an `.npga` avatar (format version 2), written atomically."""
+
+from __future__ import annotations
+
+import argparse
+from pathlib import Path
+
+from npga_core.errors import AvatarFileError
+
+KINDS = ("gha",)
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("kind", choices=KINDS, help="the method the checkpoint comes from: gha = Gaussian-Head-Avatar "
+                   "(a folder with gaussianhead_latest and, optionally, supres_latest)")
+    p.add_argument("checkpoint", help="the checkpoint folder (or the gaussianhead_latest file)")
+    p.add_argument("--config", default=None, help="GHA's YAML config the avatar was trained with (distance "
+                   "thresholds, scales); default: the values of GHA's published training config")
+    p.add_argument("--legacy-rotation", action="store_true", help="rotations as GHA's code before 2024-07-12 "
+                   "normalised them (across the Gaussians); default: per Gaussian, as GHA does today")
+    p.add_argument("--out", required=True, help="the .npga file to write")
+
+
+def run(args: argparse.Namespace) -> int:
+    from npga_core.files.checkpoint import save_avatar
+    from npga_core.files.gha import import_gha
+
+    out = Path(args.out)
+    if out.exists() and out.is_dir():
+        raise AvatarFileError(out, "is a folder; give the .npga file to write")
+    avatar = import_gha(args.checkpoint, config=args.config, legacy_rotation=args.legacy_rotation)
+    save_avatar(avatar, out)
+    p = avatar.provenance
+    g = p["groups"]
+    print(f"{out}: {len(avatar):,} Gaussians ({g['near']:,} near, {g['blended']:,} blended, {g['far']:,} far), "
+          f"{len(avatar.dynamics.networks())} networks, frame vector {avatar.code_dim} "  # type: ignore[union-attr]
+          f"(expression {avatar.code_dim - avatar.condition_dim} + head pose {avatar.condition_dim}), "
+          f"super-resolution: {f'x{avatar.cnn.config.upsample} CNN' if avatar.cnn else 'none'}; "
+          f"settings from {p['settings_from']}; rotation {p['rotation_normalisation']}")
+    return 0
