@@ -117,8 +117,8 @@ def _ours(avatar, exp: torch.Tensor, pose: torch.Tensor, scale: float, fast: boo
     head = similarity(matrix_from_rotvec(pose[:3].double().numpy()), pose[3:].double().numpy(), scale)
     if not fast:
         return avatar.pose(z, reference=True, head=head)
-    from npga_core.model.rigid import transform_posed
     from npga_core.model.gaussians import PosedGaussians
+    from npga_core.model.rigid import transform_posed
 
     buf = posed_buffers(len(avatar), 1, avatar.cloud.latent_dim)
     FastPoser(avatar, chunk=128, threads=2).pose_into(z, buf)
@@ -393,3 +393,34 @@ def test_against_ghas_own_upsampler(small_gha, monkeypatch):
     x = torch.rand(1, SMALL["channels"], 12, 10, generator=torch.Generator().manual_seed(1))
     with torch.no_grad():
         torch.testing.assert_close(import_gha(small_gha).cnn(x), net.eval()(x), atol=1e-5, rtol=1e-5)
+
+
+def test_export_writes_the_posed_gaussians_with_their_colour_channels(small_gha, tmp_path):
+    from npga_view.cli.main import main
+
+    data = write_gha_params(tmp_path / "data", frames=4, exp_dim=SMALL["exp_dim"])
+    out = tmp_path / "posed.ply"
+    assert main(["export", str(small_gha), "--sequence", str(data), "--frame", "2", "--head-pose", "absolute",
+                 "--out", str(out)]) == 0
+    raw = out.read_bytes()
+    end = raw.index(b"end_header\n") + len(b"end_header\n")
+    names = [ln.split()[-1] for ln in raw[:end].decode().splitlines() if ln.startswith("property")]
+    table = np.frombuffer(raw[end:], "<f4").reshape(-1, len(names))
+    col = {n: table[:, i] for i, n in enumerate(names)}
+    state = torch.load(small_gha / "gaussianhead_latest", weights_only=True)
+    frame = np.load(data / "params" / "0002" / "params.npz")
+    exp, pose = torch.from_numpy(frame["exp_coeff"][0]), torch.from_numpy(frame["pose"][0])
+    ref = _generate_as_read(state, SETTINGS, exp, pose, float(frame["scale"][0]), SMALL["freqs"])
+    avatar = import_gha(small_gha)
+    rows = _original_rows(avatar, state["xyz"].numpy())
+    ref = {k: v.numpy()[rows] for k, v in ref.items()}
+    np.testing.assert_allclose(np.stack([col["x"], col["y"], col["z"]], 1), ref["xyz"], atol=1e-5, rtol=1e-5)
+    np.testing.assert_allclose(np.exp(np.stack([col[f"scale_{i}"] for i in range(3)], 1)), ref["scales"], rtol=1e-4)
+    np.testing.assert_allclose(1 / (1 + np.exp(-col["opacity"])), ref["opacity"][:, 0], atol=1e-5)
+    k = SMALL["channels"]
+    np.testing.assert_allclose(np.stack([col[f"latent_{i}"] for i in range(k)], 1), ref["color"], atol=1e-5)
+    dc = np.stack([col[f"f_dc_{i}"] for i in range(3)], 1)
+    np.testing.assert_allclose(dc * SH_C0 + 0.5, ref["color"][:, :3], atol=1e-5)
+    q = np.stack([col[f"rot_{i}"] for i in range(4)], 1)
+    sign = np.sign(np.sum(q * ref["rotation"], axis=1, keepdims=True))
+    np.testing.assert_allclose(q * sign, ref["rotation"], atol=1e-5)

@@ -64,7 +64,7 @@ def gha_state_dicts(n: int = 2000, seed: int = 0, feature_dim: int = FEATURE_DIM
         for i in range(len(dims) - 1):
             fan_in = dims[i] + (dims[0] if i == skip else 0)
             last = i == len(dims) - 2
-            gain = 0.05 if last else np.sqrt(2.0 / fan_in)
+            gain = (0.004 if name.endswith("color") else 0.05) if last else np.sqrt(2.0 / fan_in)
             state[f"{name}_mlp.conv{i}.weight"] = torch.randn(dims[i + 1], fan_in, 1, generator=g) * gain
             bias = 0.02 * torch.randn(dims[i + 1], generator=g)
             if last and name.endswith("color"):

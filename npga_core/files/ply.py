@@ -166,12 +166,14 @@ def _read_ply(path: Path) -> GaussianCloud:
 
 
 def write_ply(path: str | Path, means: np.ndarray, quats: np.ndarray, log_scales: np.ndarray,
-              opacity_logits: np.ndarray, sh: np.ndarray) -> None:
-    """Write stored-form attributes in the standard 3DGS layout, atomically."""
+              opacity_logits: np.ndarray, sh: np.ndarray, extra: dict[str, np.ndarray] | None = None) -> None:
+    """Write stored-form attributes in the standard 3DGS layout, atomically; `extra` adds float properties (one
+    column each) after the standard ones, which 3DGS readers skip."""
     path = Path(path)
     n, k = sh.shape[0], sh.shape[1]
     deg = {1: 0, 4: 1, 9: 2, 16: 3}[k]
-    fields = standard_fields(deg)
+    extra = extra or {}
+    fields = standard_fields(deg) + list(extra)
     data = np.empty((n, len(fields)), dtype="<f4")
     data[:, 0:3] = means
     data[:, 3:6] = 0.0
@@ -183,6 +185,8 @@ def write_ply(path: str | Path, means: np.ndarray, quats: np.ndarray, log_scales
     data[:, o] = opacity_logits
     data[:, o + 1 : o + 4] = log_scales
     data[:, o + 4 : o + 8] = quats
+    for i, column in enumerate(extra.values()):
+        data[:, o + 8 + i] = column
     header = "ply\nformat binary_little_endian 1.0\n"
     header += "comment written by npga-view\n"
     header += f"element vertex {n}\n" + "".join(f"property float {f}\n" for f in fields) + "end_header\n"
@@ -199,6 +203,8 @@ def save_ply(cloud: GaussianCloud, path: str | Path) -> None:
 
 
 def save_posed_ply(posed: PosedGaussians, path: str | Path) -> None:
-    """Export posed (activated) Gaussians as a standard 3DGS PLY."""
+    """Export posed (activated) Gaussians as a standard 3DGS PLY; latent channels (the K colour channels of a
+    Gaussian-Head-Avatar avatar) follow as extra properties `latent_0` .. `latent_{K-1}`."""
+    extra = {} if posed.latent is None else {f"latent_{i}": posed.latent[:, i] for i in range(posed.latent.shape[1])}
     write_ply(path, posed.means, posed.quats, np.log(np.maximum(posed.scales, 1e-30)), logit(posed.opacities),
-              posed.sh)
+              posed.sh, extra)

@@ -64,55 +64,72 @@ from npga_core.model.avatar import Avatar
 from npga_core.model.dynamics import Offsets
 from npga_core.model.gaussians import SH_C0, GaussianCloud, PosedGaussians
 
-# --- offsets -------------------------------------------------------------------------------------------------
+# --- offsets ---------------------------------------------------------------------------------------------------
+#: Offset sources of NPGA's networks ("sum" of all, or one network by name; other avatars name theirs).
 OFFSET_SOURCES: tuple[str, ...] = ("sum", "F", "G")
 OFFSET_ATTRIBUTES: tuple[str, ...] = ("position", "rotation", "scale", "opacity", "colour")
+_PLURAL = {"position": "positions", "rotation": "rotations", "scale": "scales", "opacity": "opacities",
+           "sh": "colours", "latent": "latent features"}
 
 
 def offsets_to_numpy(off: Offsets) -> dict[str, np.ndarray]:
-    """Offsets as float32 arrays: "F" for F's position offset, and G's blocks by name."""
-    out = {name: np.asarray(t.detach().numpy(), np.float32) for name, t in off.g.items()}
-    if off.f_position is not None:
-        out["F"] = np.asarray(off.f_position.detach().numpy(), np.float32)
-    return out
+    """Offsets as float32 arrays keyed "network.attribute" ("F.position", "G.sh", "exp_deform.position")."""
+    return {f"{net}.{attr}": np.asarray(t.detach().numpy(), np.float32)
+            for net, blocks in off.by_network.items() for attr, t in blocks.items()}
+
+
+def _qualified(off: dict[str, np.ndarray]) -> dict[str, np.ndarray]:
+    """Keys as "network.attribute"; the short forms "F" (F's position) and "attribute" (G's) are accepted."""
+    return {("F.position" if k == "F" else k if "." in k else f"G.{k}"): v for k, v in off.items()}
+
+
+def offset_sources(off: dict[str, np.ndarray], attribute: str) -> list[str]:
+    """The sources an attribute's offset can be shown from: "sum", then each network that offsets it."""
+    key = "sh" if attribute == "colour" else attribute
+    return ["sum"] + [k.split(".")[0] for k in _qualified(off) if k.split(".", 1)[1] == key]
 
 
 def offset_values(off: dict[str, np.ndarray], attribute: str = "position", source: str = "sum") -> np.ndarray:
     """The `offset` mode's scalar per Gaussian (see the module docstring); ValueError if it does not exist."""
-    if source not in OFFSET_SOURCES:
-        raise ValueError(f"unknown offset source {source!r}; choose from {', '.join(OFFSET_SOURCES)}")
-    if attribute == "position":
-        parts = {"F": off.get("F"), "G": off.get("position")}
-        chosen = [parts[s] for s in (("F", "G") if source == "sum" else (source,)) if parts[s] is not None]
-        if not chosen:
-            raise ValueError(f"the avatar has no position offset from {source}")
-        return np.linalg.norm(sum(chosen), axis=1).astype(np.float32)
     if attribute not in OFFSET_ATTRIBUTES:
         raise ValueError(f"unknown offset attribute {attribute!r}; choose from {', '.join(OFFSET_ATTRIBUTES)}")
-    if source == "F":
-        raise ValueError(f"F only offsets positions; the {attribute} offset comes from G")
+    off = _qualified(off)
+    nets = sorted({k.split(".")[0] for k in off}, key=list(dict.fromkeys(k.split(".")[0] for k in off)).index)
+    if source != "sum" and source not in nets:
+        raise ValueError(f"unknown offset source {source!r}; choose from {', '.join(['sum', *nets])}")
     key = "sh" if attribute == "colour" else attribute
-    d = off.get(key)
-    if d is None:
-        raise ValueError(f"G of this avatar predicts no {attribute} offset")
+    parts = [v for k, v in off.items() if k.split(".", 1)[1] == key and (source == "sum" or k.split(".")[0] == source)]
+    if not parts:
+        if source != "sum":
+            has = [_PLURAL[k.split(".", 1)[1]] for k in off if k.split(".")[0] == source]
+            raise ValueError(f"{source} only offsets {' and '.join(has)}; choose another network for the {attribute}")
+        raise ValueError(f"no network of this avatar predicts a {attribute} offset")
+    width = max(p.shape[1] for p in parts)
+    d = np.zeros((len(parts[0]), width), np.float64)
+    for p in parts:
+        d[:, : p.shape[1]] += p
+    if attribute == "position":
+        return np.linalg.norm(d, axis=1).astype(np.float32)
     if attribute == "opacity":
         return d[:, 0].astype(np.float32)
     if attribute == "scale":
         return np.linalg.norm(d, axis=1).astype(np.float32)
-    if attribute == "rotation":  # G's rotation offset d acts as the unit quaternion normalize((1,0,0,0) + d)
-        q = d.astype(np.float64) + np.array([1.0, 0.0, 0.0, 0.0])
+    if attribute == "rotation":  # a rotation offset d acts as the unit quaternion normalize((1,0,0,0) + d)
+        q = d + np.array([1.0, 0.0, 0.0, 0.0])
         w = np.abs(q[:, 0]) / np.maximum(np.linalg.norm(q, axis=1), 1e-12)
         return np.degrees(2.0 * np.arccos(np.clip(w, 0.0, 1.0))).astype(np.float32)
     return np.linalg.norm(SH_C0 * d[:, :3], axis=1).astype(np.float32)  # colour: DC coefficients only
 
 
 def offset_label(attribute: str, source: str) -> str:
+    who = "all networks" if source == "sum" else source
     return {
-        "position": f"|position offset| of {'F + G' if source == 'sum' else source} (world units)",
-        "rotation": "rotation offset of G (degrees)",
-        "scale": "|log-scale offset| of G",
-        "opacity": "opacity offset of G (logit)",
-        "colour": "|colour offset| of G (RGB)",
+        "position": f"|position offset| of {'F + G' if source == 'sum' else source} (world units)"
+        if source in ("sum", "F", "G") else f"|position offset| of {who} (world units)",
+        "rotation": f"rotation offset of {who} (degrees; (1,0,0,0) + d as a rotation)",
+        "scale": f"|log-scale offset| of {who}",
+        "opacity": f"opacity offset of {who} (logit)",
+        "colour": f"|colour offset| of {who} (RGB)",
     }[attribute]
 
 
@@ -329,15 +346,14 @@ class Inspector:
                 raise ValueError("the avatar has no features f")
             return np.asarray(self.cloud.features), "f"
         off = self.offsets(code)
-        if what == "G":
-            blocks = [v for k, v in off.items() if k != "F"]
-            if not blocks:
-                raise ValueError("the avatar has no G")
-            return np.concatenate(blocks, axis=1), "all offsets of G"
-        if what not in off or what == "F":
-            raise ValueError(f"G predicts no {what!r} offset; choose features, G or one of "
-                             f"{', '.join(k for k in off if k != 'F')}")
-        return off[what], f"G's {what} offset"
+        nets = {k.split(".")[0] for k in off}
+        if what in nets:
+            blocks = [v for k, v in off.items() if k.split(".")[0] == what]
+            return np.concatenate(blocks, axis=1), f"all offsets of {what}"
+        if f"G.{what}" not in off:
+            raise ValueError(f"G predicts no {what!r} offset; choose features, a network ({', '.join(sorted(nets))})"
+                             f" or one of {', '.join(k[2:] for k in off if k.startswith('G.'))}")
+        return off[f"G.{what}"], f"G's {what} offset"
 
     # -- values for histograms and range filters ---------------------------------------------------------------
     def attribute_names(self) -> list[str]:
@@ -492,8 +508,7 @@ class Inspector:
             rec["part"] = c.part_names[int(c.part_ids[index])]
         rec["offsets"] = {}
         if self.avatar.dynamics is not None:
-            rec["offsets"] = {("F position" if k_ == "F" else f"G {k_}"): v[index].copy()
-                              for k_, v in self.offsets(code).items()}
+            rec["offsets"] = {k_.replace(".", " "): v[index].copy() for k_, v in self.offsets(code).items()}
         nbrs = self.graph(k)[index]
         d = np.linalg.norm(np.asarray(c.means)[nbrs] - np.asarray(c.means)[index], axis=1)
         rec["neighbours"] = [(int(j), float(dist)) for j, dist in zip(nbrs, d, strict=True)]

@@ -43,6 +43,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("avatars", nargs="*", help="avatar files to measure (default: the demo avatar, if built)")
     p.add_argument("--gaussians", type=int, nargs="*", default=list(DEFAULT_SIZES),
                    help="sizes of synthetic paper-sized avatars (default: 20000 100000 250000; none: skip)")
+    p.add_argument("--gha", type=int, nargs="*", default=[], metavar="N",
+                   help="also sizes of synthetic Gaussian-Head-Avatar checkpoints at GHA's default network sizes "
+                        "(opened as GHA folders; e.g. --gha 100000)")
     p.add_argument("--json", type=Path, help="also write the results as JSON")
     p.add_argument("--threads", type=int, default=2, help="threads of the dynamics (default 2)")
     p.add_argument("--device", default="cpu", help="dynamics device: cpu (default), cuda, mps or auto")
@@ -585,6 +588,10 @@ def run(args: argparse.Namespace) -> int:
             path = Path(tmp) / f"synthetic-{n}.npga"
             save_avatar(make_synthetic_avatar(n, latent_dim=4, with_cnn=True), path)  # CNN: times that stage too
             targets.append((f"synthetic {n // 1000}k", str(path)))
+        for n in args.gha:
+            from npga_core.files.gha_synthetic import write_gha_folder
+
+            targets.append((f"GHA synthetic {n // 1000}k", str(write_gha_folder(Path(tmp) / f"gha-{n}", n))))
         for name, path in targets:
             res = bench_avatar(name, path, args)
             results.append(res)

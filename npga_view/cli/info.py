@@ -17,13 +17,22 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def _mlp_lines(key: str, net) -> list[str]:
     c = net.config
     shapes = " -> ".join([str(c.encoded_input_dim)] + [str(o) for o, _ in c.layer_shapes()])
-    outs = ", ".join(f"{n}:{w}" for n, w in c.outputs)
-    enc = f"mu with {c.pos_freqs} frequencies" if c.pos_freqs else "mu raw"
+    act = c.activation + (f" {c.slope:g}" if c.activation == "leaky_relu" else "")
+    act += f", output {c.output_activation}" if c.output_activation != "none" else ""
     skips = f", skips at {c.skips}" if c.skips else ""
+    names = {"position": "mu", "features": "f", "code": "z", "condition": "condition"}
+    inputs = []
+    for spec in c.specs:
+        w = c.raw_width(spec)
+        enc = f" {spec.encoding} x{spec.freqs} ({w} -> {spec.encoded_width(w)})" if spec.encoding != "none" else ""
+        inputs.append(f"{names[spec.kind]} {w}{enc}")
+    routes = ", ".join(f"{r.attribute}[{r.to}:{r.to + r.width}]" + (f" x{r.scale:.4g}" if r.scale != 1 else "")
+                       for r in c.routes or [])
+    blend = f"; blended by {c.blend}" if c.blend else ""
     return [
-        f"  {key}: {c.depth} layers {shapes} ({c.activation}{skips})",
-        f"     inputs: {enc} (3 -> {c.mu_encoded_dim}), f {c.feature_dim}, z {c.code_dim}",
-        f"     outputs: {outs}; {c.flops_per_gaussian() / 1e6:.2f} MFLOP per Gaussian",
+        f"  {key}: {c.depth} layers {shapes} ({act}{skips})",
+        f"     inputs: {', '.join(inputs)}",
+        f"     outputs: {routes}{blend}; {c.flops_per_gaussian() / 1e6:.2f} MFLOP per Gaussian",
     ]
 
 
@@ -44,16 +53,29 @@ def summary(avatar: Avatar, path: str, load_s: float) -> str:
     if avatar.dynamics is None:
         lines.append("  dynamics: none (static)")
     else:
-        lines.append(f"  dynamics (rotation op: {avatar.dynamics.rotation_op}):")
-        for key, net in avatar.dynamics.networks().items():
+        dyn = avatar.dynamics
+        lines.append(f"  dynamics (rotation rule: {dyn.rotation_op}):")
+        if dyn.condition:
+            lines.append(f"  frame vector: expression {dyn.expression_dim} + condition {dyn.condition_dim} "
+                         f"({dyn.condition.get('description', dyn.condition.get('kind', ''))})")
+        for name, note in dyn.blend_notes.items():
+            lines.append(f"  blend weight {name}: {note}")
+        for key, net in dyn.networks().items():
             lines += _mlp_lines(key, net)
     if avatar.cnn is None:
         lines.append("  CNN: none")
     else:
         cfg = avatar.cnn.config
-        layers = ", ".join(f"{lay.in_channels}->{lay.out_channels} k{lay.kernel} {lay.activation or 'linear'}"
-                           for lay in cfg.layers)
-        lines.append(f"  CNN: {len(cfg.layers)} layers ({layers}){', residual' if cfg.residual else ''}")
+        if cfg.simple:
+            layers = ", ".join(f"{lay.in_channels}->{lay.out_channels} k{lay.kernel} {lay.activation or 'linear'}"
+                               for lay in cfg.layers)
+        else:
+            layers = " ".join(f"conv{o['in']}->{o['out']}k{o['kernel']}" if o["op"] == "conv" else
+                              f"up{o['factor']}" if o["op"] == "upsample" else
+                              "IN" if o["op"] == "instance_norm" else o["name"] for o in cfg.ops or [])
+        scale = f", x{cfg.upsample} upsampling" if cfg.upsample > 1 else ""
+        lines.append(f"  CNN: {len(cfg.layers)} convolutions on {cfg.input} ({layers})"
+                     f"{', residual' if cfg.residual else ''}{scale}, {cfg.macs_per_pixel() / 1e6:.2f} MMAC/pixel")
     lines.append(f"  expression dim: {avatar.code_dim}")
     ex = avatar.expression
     if ex is not None:
@@ -63,7 +85,8 @@ def summary(avatar: Avatar, path: str, load_s: float) -> str:
             lines.append(f"  named expressions: {', '.join(ex.named)}")
     prov = avatar.provenance
     if prov:
-        keys = ("source", "created_at", "written_by", "builder", "seed")
+        keys = ("source", "path", "settings_from", "rotation_normalisation", "super_resolution", "created_at",
+                "written_by", "builder", "seed")
         shown = ", ".join(f"{k}={prov[k]}" for k in keys if k in prov)
         if shown:
             lines.append(f"  provenance: {shown}")

@@ -48,7 +48,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                        INSPECT_MODES[:-3]) + " (colour modes, see npga_core/inspect.py); points, ellipsoids "
                    "(geometry views); knn (the kNN graph over the splats)")
     g = p.add_argument_group("inspection modes")
-    g.add_argument("--offset-source", choices=("F", "G", "sum"), default="sum", help="offset mode: which network")
+    g.add_argument("--offset-source", default="sum", metavar="NET",
+                   help="offset mode: sum (all networks) or one network by name (F, G; an imported avatar's own)")
     g.add_argument("--offset-attr", choices=("position", "rotation", "scale", "opacity", "colour"),
                    default="position", help="offset mode: which attribute's offset (all but position come from G)")
     g.add_argument("--laplacian-of", default="features", metavar="X",

@@ -116,8 +116,9 @@ class RefineController:
                 self._drop_latent()
             else:
                 if refiner.pending_key() != key:
-                    latent = self._latent_image(key, camera) if refiner.latent_dim else None
-                    if refiner.latent_dim and latent is None:
+                    full = refiner.wants_full_latent  # an upsampling CNN's smaller latent image is drawn by submit
+                    latent = self._latent_image(key, camera) if full else None
+                    if full and latent is None:
                         return False
                     front = self._front()
                     rgb = front[..., :3] + (1.0 - front[..., 3:4]) * np.asarray(bg, np.float32)

@@ -31,7 +31,6 @@ from npga_core.inspection.inspector import (
     KNN_COLOURS,
     KNN_SHOW,
     OFFSET_ATTRIBUTES,
-    OFFSET_SOURCES,
     STYLES,
     InspectInfo,
     InspectSettings,
@@ -117,8 +116,16 @@ def _mode(s: InspectSettings, a) -> None:
         s.mode = new
     if new == "offset":
         s.offset_attr = _combo("Attribute", s.offset_attr, OFFSET_ATTRIBUTES)
-        if s.offset_attr == "position":
-            s.offset_source = _combo("Network", s.offset_source, OFFSET_SOURCES, ("F + G", "F", "G"))
+        key = "sh" if s.offset_attr == "colour" else s.offset_attr
+        nets = [k for k, n in (a.dynamics.networks().items() if a.dynamics is not None else [])
+                if any(r.attribute == key for r in n.config.routes or [])]
+        if len(nets) > 1:  # offsets of one network, or the sum of all that offset this attribute
+            sources = ("sum", *nets)
+            if s.offset_source not in sources:
+                s.offset_source = "sum"
+            s.offset_source = _combo("Network", s.offset_source, sources, (" + ".join(nets), *nets))
+        else:
+            s.offset_source = "sum"
     elif new == "laplacian":
         blocks = [b for b, _ in a.dynamics.G.config.outputs] if a.dynamics is not None and a.dynamics.G else []
         choices = ["features"] + (["G"] + [b for b in G_BLOCKS if b in blocks] if blocks else [])

@@ -44,29 +44,58 @@ if TYPE_CHECKING:
 LATENT_VIEWS = ("off", "pca", "channel")
 
 
+def cnn_camera(camera: Camera, upsample: int) -> Camera:
+    """The camera of a CNN's input image: `camera`'s view with intrinsics divided by the CNN's upsampling factor
+    (pixel centres at +0.5 on both grids), the size rounded up so that the output covers the whole image."""
+    if upsample == 1:
+        return camera
+    w, h = -(-camera.width // upsample), -(-camera.height // upsample)
+    return Camera(camera.world_to_camera.copy(), camera.fx / upsample, camera.fy / upsample, camera.cx / upsample,
+                  camera.cy / upsample, w, h)
+
+
+def cnn_input(renderer: SplatRenderer, cnn: ScreenCNN, camera: Camera, background=(0.0, 0.0, 0.0),
+              rgb: np.ndarray | None = None, latent: np.ndarray | None = None) -> np.ndarray:
+    """The CNN's input image of `camera`'s view: [rgb, latent] at the camera's size, or (a CNN on the latent
+    channels alone, e.g. Gaussian-Head-Avatar's) the latent channels over their background at the CNN's input
+    size (`cnn_camera`). `rgb` and `latent` are used when the caller has them for this camera."""
+    cfg = cnn.config
+    if cfg.in_channels != cfg.input_channels(renderer.latent_dim):
+        raise ValueError(f"the CNN takes {cfg.in_channels} channels, the avatar renders "
+                         f"{cfg.input_channels(renderer.latent_dim)}")
+    if cfg.input == "latent":
+        small = cnn_camera(camera, cfg.upsample)
+        lat = latent if latent is not None and small is camera else renderer.render_latent(small)
+        alpha = renderer.render(small, mode="alpha") if cfg.latent_background else None
+        return cnn.assemble(None, lat, alpha)
+    if rgb is None:
+        rgb = renderer.render(camera, background)
+    if renderer.latent_dim and latent is None:
+        latent = renderer.render_latent(camera)
+    return cnn.assemble(rgb, latent, None)
+
+
+def fit_output(image: np.ndarray, camera: Camera) -> np.ndarray:
+    """A CNN's output cut to the camera's size (an upsampling CNN's input size was rounded up)."""
+    return image if image.shape[:2] == (camera.height, camera.width) else \
+        np.ascontiguousarray(image[: camera.height, : camera.width])
+
+
 def refine_frame(renderer: SplatRenderer, cnn: ScreenCNN, camera: Camera, background=(0.0, 0.0, 0.0),
                  rgb: np.ndarray | None = None, timings: dict[str, float] | None = None,
                  runner: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
     """The CNN-refined RGB image (H, W, 3) float32 of the Gaussians uploaded to `renderer`, seen by `camera`.
 
     `rgb` is the renderer's colour image over `background` for this camera if the caller has it already (it is
-    rendered otherwise). The latent pass composites the uploaded (posed) latent features without background,
-    the CNN gets [rgb, latent] (FORMAT.md section 7; rgb alone for a CNN of an avatar without latent features) and
-    its output is clamped to [0, 1]. `runner` runs the CNN
-    on the stacked image (default `cnn.refine`; the window passes a traced copy on its device). Milliseconds of
-    the stages go to `timings` ("rgb" when rendered here, "latent", "cnn").
+    rendered otherwise when the CNN takes it). The CNN gets `cnn_input` (FORMAT.md section 7) and its output is
+    clamped to [0, 1]. `runner` runs the CNN on that image (default `cnn.refine`; the window passes a traced copy
+    on its device). Milliseconds of the stages go to `timings` ("latent": the passes, "cnn").
     """
-    if cnn.config.in_channels != 3 + renderer.latent_dim:
-        raise ValueError(f"the CNN takes {cnn.config.in_channels} channels, the image has 3 + {renderer.latent_dim}")
     t = timings if timings is not None else {}
-    t0 = time.perf_counter()
-    if rgb is None:
-        rgb = renderer.render(camera, background)
-        t["rgb"] = (time.perf_counter() - t0) * 1e3
     t1 = time.perf_counter()
-    stacked = np.concatenate([rgb, renderer.render_latent(camera)], axis=2) if renderer.latent_dim else rgb
+    image = cnn_input(renderer, cnn, camera, background, rgb)
     t2 = time.perf_counter()
-    out = (runner or cnn.refine)(stacked)
+    out = fit_output((runner or cnn.refine)(image), camera)
     t["latent"] = (t2 - t1) * 1e3
     t["cnn"] = (time.perf_counter() - t2) * 1e3
     return out
@@ -78,6 +107,7 @@ def _traced_copy(cnn: ScreenCNN, channels: int, device: torch.device) -> torch.n
     try:
         with warnings.catch_warnings(), torch.no_grad():
             warnings.simplefilter("ignore", DeprecationWarning)
+            warnings.simplefilter("ignore", torch.jit.TracerWarning)  # instance norm's size check, a constant
             return torch.jit.trace(cnn, torch.zeros(1, channels, 16, 16, device=device))
     except Exception:  # noqa: BLE001 - any failure of the optional tracing falls back to eager
         return cnn
@@ -160,11 +190,11 @@ class Refiner:
         self.latent_dim = 0 if latent is None else int(latent.shape[1])
         self.cnn = None
         self._traced = None
-        if cnn is not None and cnn.config.in_channels == 3 + self.latent_dim:
+        if cnn is not None and cnn.config.in_channels == cnn.config.input_channels(self.latent_dim):
             self.cnn = copy.deepcopy(cnn).to(self.device).eval()
             for p in self.cnn.parameters():
                 p.requires_grad_(False)
-            self._traced = _traced_copy(self.cnn, 3 + self.latent_dim, self.device)
+            self._traced = _traced_copy(self.cnn, self.cnn.config.in_channels, self.device)
         self._pca = None
         self._ranges = []
         if self.latent_dim:
@@ -176,8 +206,14 @@ class Refiner:
 
     @property
     def has_cnn(self) -> bool:
-        """The avatar has a CNN that fits its latent features (3 + H input channels)."""
+        """The avatar has a CNN that fits its latent features (3 + H input channels, or H alone)."""
         return self.cnn is not None
+
+    @property
+    def wants_full_latent(self) -> bool:
+        """The CNN takes the latent image at the view's own size (the window then draws it in slices); a CNN
+        that upsamples takes a smaller one, which `submit` draws itself."""
+        return self.cnn is not None and self.latent_dim > 0 and self.cnn.config.upsample == 1
 
     def shows(self, use_cnn: bool, latent_view: str, mode: str = "rgb") -> str | None:
         """What the window should show for these state values: "refined", "latent" or None (the raw splats, as
@@ -263,30 +299,24 @@ class Refiner:
         if renderer.latent_dim != self.latent_dim:
             raise ValueError(f"the uploaded Gaussians have {renderer.latent_dim} latent channels, the avatar "
                              f"{self.latent_dim}")
-        t0 = time.perf_counter()
         timings: dict[str, float] = {}
-        if rgb is None:
-            rgb = renderer.render(camera, background)
-            timings["rgb"] = (time.perf_counter() - t0) * 1e3
         t1 = time.perf_counter()
-        if self.latent_dim and latent is None:  # the window passes the latent image it drew in slices
-            latent = renderer.render_latent(camera)
-        image = np.concatenate([rgb, latent], axis=2) if self.latent_dim else rgb
+        image = cnn_input(renderer, self.cnn, camera, background, rgb, latent)
         timings["latent"] = (time.perf_counter() - t1) * 1e3
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="npga-cnn")
         traced, device = self._traced, self.device
-        halo = sum(layer.kernel // 2 for layer in self.cnn.config.layers)
+        halo = self.cnn.config.band_halo()  # None: the CNN needs the whole image at once (instance norm, upsampling)
         stop = threading.Event()
 
         def run() -> np.ndarray | None:
             t2 = time.perf_counter()
-            if device.type == "cpu":  # in bands: a refinement of a view the person has left stops early
+            if device.type == "cpu" and halo is not None:  # in bands: a refinement the person left stops early
                 out = _run_banded(traced, device, image, halo, stop.is_set)
             else:
                 out = _run_traced(traced, device, image)
             timings["cnn"] = (time.perf_counter() - t2) * 1e3
-            return out
+            return None if out is None else fit_output(out, camera)
 
         with self._lock:
             if self._job is not None:

@@ -1,0 +1,84 @@
+"""The real window (Xvfb) on an imported Gaussian-Head-Avatar checkpoint: it opens the folder, the sliders and a
+params sequence move the pixels, and the raw/refined switch shows the first three colour channels or the CNN."""
+
+from __future__ import annotations
+
+import os
+import time
+
+import numpy as np
+import pytest
+
+from npga_core.files.gha_synthetic import write_gha_folder, write_gha_params
+from tests.xvfb import start_xvfb, stop
+
+pytestmark = pytest.mark.gui
+
+SMALL = {"feature_dim": 16, "exp_dim": 8, "hidden": 32, "channels": 8, "freqs": 2, "capacity": 2}
+
+
+@pytest.fixture(scope="module")
+def window(tmp_path_factory):
+    try:
+        proc, name = start_xvfb()
+    except RuntimeError as e:
+        if os.environ.get("CI"):
+            raise
+        pytest.skip(str(e))
+    old = os.environ.get("DISPLAY")
+    os.environ["DISPLAY"] = name
+    root = tmp_path_factory.mktemp("ghawin")
+    os.environ["XDG_CONFIG_HOME"] = str(root / "config")
+    from npga_view.app import ViewerApp
+
+    app = ViewerApp(900, 700, vsync=False, threads=1, remember_recent=False)
+    yield app, root
+    app.close()
+    stop(proc)
+    if old is None:
+        os.environ.pop("DISPLAY", None)
+    else:
+        os.environ["DISPLAY"] = old
+
+
+def _until_changed(app, before: np.ndarray, timeout: float = 180.0, min_fraction: float = 0.002) -> np.ndarray:
+    """Step the window until its viewport differs from `before` (a generous bound, not a rate), then until two
+    reads agree (the image settled)."""
+    end = time.monotonic() + timeout
+    now = before
+    while time.monotonic() < end:
+        app.step()
+        now = app.read_window(viewport_only=True)
+        if (np.abs(now.astype(int) - before.astype(int)).max(axis=2) > 8).mean() > min_fraction:
+            break
+    else:
+        raise AssertionError("the viewport did not change")
+    while time.monotonic() < end:
+        for _ in range(3):
+            app.step()
+        again = app.read_window(viewport_only=True)
+        if np.array_equal(again, now):
+            return again
+        now = again
+    return now
+
+
+def test_window_on_an_imported_gha_checkpoint(window):
+    app, root = window
+    folder = write_gha_folder(root / "ckpt", n=2500, seed=5, **SMALL)
+    data = write_gha_params(root / "data", frames=6, exp_dim=SMALL["exp_dim"])
+    blank = app.read_window(viewport_only=True)
+    app.state.use_cnn = False  # the raw splats: the first three colour channels
+    assert app.open_avatar(str(folder))
+    assert app.avatar is not None and app.avatar.condition_dim == 6
+    raw = _until_changed(app, blank)
+    assert raw.std() > 5, "the avatar should be visible"
+    app.state.follow_sequence = False
+    app.state.sliders[0] = 3.0  # the first raw expression coefficient, +3
+    moved = _until_changed(app, raw)
+    assert app.open_sequence(str(data))
+    app.state.follow_sequence = True
+    _until_changed(app, moved)
+    app.state.use_cnn = True  # GHA's super-resolution CNN on the 8-channel image at a quarter of the size
+    refined = _until_changed(app, app.read_window(viewport_only=True), min_fraction=0.05)
+    assert refined.std() > 1
