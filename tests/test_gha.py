@@ -424,3 +424,17 @@ def test_export_writes_the_posed_gaussians_with_their_colour_channels(small_gha,
     q = np.stack([col[f"rot_{i}"] for i in range(4)], 1)
     sign = np.sign(np.sum(q * ref["rotation"], axis=1, keepdims=True))
     np.testing.assert_allclose(q * sign, ref["rotation"], atol=1e-5)
+
+
+def test_expression_space_from_a_sequence(small_gha, tmp_path):
+    root = write_gha_params(tmp_path / "data", frames=12, exp_dim=SMALL["exp_dim"])
+    seq = load_sequence(root)
+    a = import_gha(small_gha, sequence=seq, sequence_name="data")
+    ex = a.expression
+    assert ex.dim == SMALL["exp_dim"] + 6 and 1 <= ex.n_components <= SMALL["exp_dim"]
+    np.testing.assert_allclose(ex.mean[: SMALL["exp_dim"]], seq.codes[:, : SMALL["exp_dim"]].mean(0), atol=1e-6)
+    assert np.all(ex.basis[:, SMALL["exp_dim"]:] == 0) and np.all(ex.mean[SMALL["exp_dim"]:] == 0)
+    # the first direction carries the largest variance of the coefficients
+    proj = (seq.codes[:, : SMALL["exp_dim"]] - ex.mean[: SMALL["exp_dim"]]) @ ex.basis[0, : SMALL["exp_dim"]]
+    np.testing.assert_allclose(proj.std(ddof=1), ex.std[0], rtol=1e-4)
+    assert "PCA" in a.provenance["expression_space"]

@@ -171,8 +171,24 @@ def _load_mlp(cfg: MLPConfig, state: dict, name: str) -> ConditionedMLP:
     return net.eval()
 
 
-def import_gha(folder: str | Path, config: str | Path | None = None, legacy_rotation: bool = False) -> Avatar:
-    """The avatar of a GHA checkpoint folder (`gaussianhead_latest`, optional `supres_latest`)."""
+def expression_space_from(seq: ExpressionSequence, exp_dim: int, source: str | Path) -> ExpressionSpace:
+    """The PCA of a sequence's expression coefficients (its frame vectors' first `exp_dim` columns) as the
+    avatar's expression space: the condition part stays at zero (GHA's frontal head pose)."""
+    if seq.dim != exp_dim + 6:
+        raise AvatarFileError(source, f"has frame vectors of {seq.dim} values; the checkpoint takes {exp_dim} "
+                              "expression coefficients and a 6-D pose")
+    if len(seq) < 2:
+        raise AvatarFileError(source, "has fewer than 2 frames: no PCA")
+    pca = ExpressionSpace.from_codes(seq.codes[:, :exp_dim])
+    pad = np.zeros((pca.n_components, 6), np.float32)
+    return ExpressionSpace(np.concatenate([pca.mean, np.zeros(6, np.float32)]),
+                           np.concatenate([pca.basis, pad], 1), pca.std, {})
+
+
+def import_gha(folder: str | Path, config: str | Path | None = None, legacy_rotation: bool = False,
+               sequence: ExpressionSequence | None = None, sequence_name: str = "") -> Avatar:
+    """The avatar of a GHA checkpoint folder (`gaussianhead_latest`, optional `supres_latest`); its expression
+    space is the PCA of `sequence`'s coefficients when one is given, else the raw coefficients with unit std."""
     folder = Path(folder)
     head_path = folder / HEAD if folder.is_dir() else folder
     state = load_state_dict(head_path, "a GHA gaussianhead checkpoint")
@@ -248,8 +264,13 @@ def import_gha(folder: str | Path, config: str | Path | None = None, legacy_rota
                         condition=dict(CONDITION), blend_notes={"expression": note, "pose": "1 - expression"})
     cnn = _import_supres(folder / SUPRES, channels) if folder.is_dir() and (folder / SUPRES).exists() else None
     d = exp_dim + 6
-    space = ExpressionSpace(np.zeros(d, np.float32), np.eye(exp_dim, d, dtype=np.float32),
-                            np.ones(exp_dim, np.float32), {})
+    if sequence is not None:
+        space = expression_space_from(sequence, exp_dim, sequence_name or "the sequence")
+        space_note = f"PCA of the expression coefficients of {len(sequence)} frames of {sequence_name or 'a sequence'}"
+    else:
+        space = ExpressionSpace(np.zeros(d, np.float32), np.eye(exp_dim, d, dtype=np.float32),
+                                np.ones(exp_dim, np.float32), {})
+        space_note = "the raw expression coefficients, unit std (GHA has no PCA; import with --sequence for one)"
     counts = np.bincount(group.numpy(), minlength=3)
     provenance = {
         "source": "Gaussian-Head-Avatar checkpoint", "path": str(folder), "imported_by": "npga-view import gha",
@@ -258,8 +279,7 @@ def import_gha(folder: str | Path, config: str | Path | None = None, legacy_rota
         "per Gaussian (GHA since 2024-07-12)",
         "groups": {"near": int(counts[0]), "blended": int(counts[1]), "far": int(counts[2])},
         "super_resolution": SUPRES if cnn is not None else "none (the first three colour channels are the image)",
-        "expression_space": "the raw expression coefficients, unit std (GHA has no PCA); the pose condition "
-                            "comes from sequences",
+        "expression_space": space_note + "; the pose condition comes from sequences",
     }
     return Avatar(cloud, dynamics, cnn, space, provenance=provenance, source=str(folder))
 

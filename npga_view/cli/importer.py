@@ -19,6 +19,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    "thresholds, scales); default: the values of GHA's published training config")
     p.add_argument("--legacy-rotation", action="store_true", help="rotations as GHA's code before 2024-07-12 "
                    "normalised them (across the Gaussians); default: per Gaussian, as GHA does today")
+    p.add_argument("--sequence", default=None, help="a GHA params folder (or any sequence of its frame vectors) "
+                   "whose expression coefficients give the avatar's expression space (PCA) for the sliders")
     p.add_argument("--out", required=True, help="the .npga file to write")
 
 
@@ -29,7 +31,11 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and out.is_dir():
         raise AvatarFileError(out, "is a folder; give the .npga file to write")
-    avatar = import_gha(args.checkpoint, config=args.config, legacy_rotation=args.legacy_rotation)
+    from npga_core.files.loading import load_sequence
+
+    seq = load_sequence(args.sequence) if args.sequence else None
+    avatar = import_gha(args.checkpoint, config=args.config, legacy_rotation=args.legacy_rotation, sequence=seq,
+                        sequence_name=str(args.sequence or ""))
     save_avatar(avatar, out)
     p = avatar.provenance
     g = p["groups"]
