@@ -201,6 +201,7 @@ def _exact_in_process(avatar, args, out: dict) -> FastPoser:
         runs.append(t)
     gemms.append(gemm_gflops(args.threads, repeat=2, device=gemm_device))
     med = {k: _median([r.get(k, 0.0) for r in runs]) for k in ("F", "G", "apply", "pose", "offsets")}
+    out["network_ms"] = {k: _median([r.get(k, 0.0) for r in runs]) for k in poser.nets}
     best = min(r["offsets"] for r in runs)  # best of the rounds, like the gemm rate it is compared with
     n = len(avatar)
     flop = n * poser.flops_per_gaussian
@@ -509,8 +510,11 @@ def _print(res: dict) -> None:
 
     print(f"\n{res['name']}: {res['gaussians']:,} Gaussians ({res.get('first_layer', '?')} first layer, "
           f"{res.get('kernel', '?')} kernel, chunks of {res.get('chunk', '?')})")
-    print(f"  gemm {f('gemm_gflops', ' GFLOPS')}  |  F {f('F_ms', ' ms')}  G {f('G_ms', ' ms')}  apply "
-          f"{f('apply_ms', ' ms')}  ->  F+G {f('dynamics_gflops', ' GFLOPS')} = {f('roofline_ratio', '', '{:.2f}')} "
+    nets = res.get("network_ms") or {"F": res.get("F_ms"), "G": res.get("G_ms")}
+    times = "  ".join(f"{k} {'-' if v is None else f'{v:.1f} ms'}" for k, v in nets.items())
+    print(f"  gemm {f('gemm_gflops', ' GFLOPS')}  |  {times}  apply "
+          f"{f('apply_ms', ' ms')}  ->  networks {f('dynamics_gflops', ' GFLOPS')} = "
+          f"{f('roofline_ratio', '', '{:.2f}')} "
           f"of gemm (median round {f('roofline_ratio_median', '', '{:.2f}')})  "
           f"(Avatar.pose {f('avatar_pose_ms', ' ms')})")
     print(f"  frame: upload {f('upload_ms', ' ms')}  sort {f('sort_ms', ' ms')}  pre-pass {f('preprocess_ms', ' ms')}"
