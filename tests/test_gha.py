@@ -438,3 +438,24 @@ def test_expression_space_from_a_sequence(small_gha, tmp_path):
     proj = (seq.codes[:, : SMALL["exp_dim"]] - ex.mean[: SMALL["exp_dim"]]) @ ex.basis[0, : SMALL["exp_dim"]]
     np.testing.assert_allclose(proj.std(ddof=1), ex.std[0], rtol=1e-4)
     assert "PCA" in a.provenance["expression_space"]
+
+
+def test_edited_gha_avatar_saves_and_reopens_with_the_same_posed_output(small_gha, tmp_path):
+    from npga_core.editing.edits import DeleteSelected, EditSession
+
+    a = import_gha(small_gha)
+    s = EditSession(a)
+    rng = np.random.default_rng(7)
+    s.select(rng.random(len(a)) < 0.25)  # from all three groups: near, blended and far
+    s.run(DeleteSelected())
+    assert a.cloud.blend_weights.shape == (len(a), 2)
+    z = np.random.default_rng(8).normal(0, 1, a.code_dim).astype(np.float32)
+    buf = posed_buffers(len(a), 1, a.cloud.latent_dim)
+    FastPoser(a, chunk=64, threads=2).pose_into(z, buf)  # the blended networks' row ranges after the deletion
+    ref = a.pose(z, reference=True)
+    np.testing.assert_allclose(buf["means"], ref.means, atol=1e-5)
+    path = tmp_path / "edited.npga"
+    save_avatar(a, path)
+    b = read_avatar(path)
+    np.testing.assert_array_equal(b.pose(z).means, a.pose(z).means)
+    np.testing.assert_array_equal(b.pose(z).latent, a.pose(z).latent)
