@@ -82,3 +82,34 @@ def test_window_on_an_imported_gha_checkpoint(window):
     app.state.use_cnn = True  # GHA's super-resolution CNN on the 8-channel image at a quarter of the size
     refined = _until_changed(app, app.read_window(viewport_only=True), min_fraction=0.05)
     assert refined.std() > 1
+
+
+class _Payload:
+    def __init__(self, marker):
+        self.marker = marker
+
+    def __reduce__(self):
+        from pathlib import Path
+
+        return (Path.touch, (self.marker,))
+
+
+def test_window_shows_a_hostile_checkpoint_in_one_line_and_keeps_running(window):
+    import torch
+
+    from npga_core.files.gha_synthetic import gha_state_dicts
+
+    app, root = window
+    evil = root / "evil"
+    evil.mkdir()
+    marker = root / "executed"
+    head, _ = gha_state_dicts(300, 0, **SMALL)
+    torch.save({**head, "x": _Payload(marker)}, evil / "gaussianhead_latest")
+    before = app.avatar
+    assert not app.open_avatar(str(evil))
+    for _ in range(3):
+        app.step()
+    errs = " | ".join(app.state.errors)
+    assert "gaussianhead_latest: holds more than tensors" in errs and "\n" not in errs
+    assert app.avatar is before and not marker.exists()
+    assert app.read_window(viewport_only=True).std() > 1
