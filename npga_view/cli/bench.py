@@ -168,11 +168,12 @@ class _Renderer:
                          ("preprocess_ms", t.get("preprocess", 0.0)), ("draw_ms", t.get("draw", 0.0))):
                 rows.setdefault(k, []).append(v)
             if avatar.cnn is not None and self.r.latent_dim:
+                from npga_view.rendering.refinement import cnn_input
+
                 t0 = time.perf_counter()
-                rgb = self.r.render(c)
-                latent = self.r.render_latent(c)
+                image = cnn_input(self.r, avatar.cnn, c)  # the image the window's CNN takes (its input size)
                 t1 = time.perf_counter()
-                avatar.cnn.refine(np.concatenate([rgb, latent], axis=2))
+                avatar.cnn.refine(image)
                 rows.setdefault("latent_draw_ms", []).append((t1 - t0) * 1e3)
                 rows.setdefault("cnn_ms", []).append((time.perf_counter() - t1) * 1e3)
         return {k: _median(v) for k, v in rows.items()}
