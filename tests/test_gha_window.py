@@ -3,14 +3,13 @@ params sequence move the pixels, and the raw/refined switch shows the first thre
 
 from __future__ import annotations
 
-import os
 import time
 
 import numpy as np
 import pytest
 
 from npga_core.files.gha_synthetic import write_gha_folder, write_gha_params
-from tests.xvfb import start_xvfb, stop
+from tests.xvfb import xvfb_display
 
 pytestmark = pytest.mark.gui
 
@@ -18,27 +17,21 @@ SMALL = {"feature_dim": 16, "exp_dim": 8, "hidden": 32, "channels": 8, "freqs": 
 
 
 @pytest.fixture(scope="module")
-def window(tmp_path_factory):
-    try:
-        proc, name = start_xvfb()
-    except RuntimeError as e:
-        if os.environ.get("CI"):
-            raise
-        pytest.skip(str(e))
-    old = os.environ.get("DISPLAY")
-    os.environ["DISPLAY"] = name
+def display():
+    yield from xvfb_display()
+
+
+@pytest.fixture(scope="module")
+def window(display, tmp_path_factory):
     root = tmp_path_factory.mktemp("ghawin")
-    os.environ["XDG_CONFIG_HOME"] = str(root / "config")
+    mp = pytest.MonkeyPatch()
+    mp.setenv("XDG_CONFIG_HOME", str(root / "config"))
     from npga_view.app import ViewerApp
 
     app = ViewerApp(900, 700, vsync=False, threads=1, remember_recent=False)
     yield app, root
     app.close()
-    stop(proc)
-    if old is None:
-        os.environ.pop("DISPLAY", None)
-    else:
-        os.environ["DISPLAY"] = old
+    mp.undo()
 
 
 def _until_changed(app, before: np.ndarray, timeout: float = 180.0, min_fraction: float = 0.002) -> np.ndarray:

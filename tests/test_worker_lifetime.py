@@ -25,7 +25,7 @@ import pytest
 from npga_core.files.checkpoint import save_avatar
 from npga_core.model.synthetic import make_synthetic_avatar
 
-from .xvfb import start_xvfb, stop
+from .xvfb import xvfb_display
 
 pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="reads /proc")
 
@@ -223,14 +223,7 @@ def test_bench_ended_by_sigterm_stops_its_worker(avatar_file, tmp_path):
 # -- the viewer: close signals are a window close -----------------------------------------------------------
 @pytest.fixture(scope="module")
 def display():
-    try:
-        proc, name = start_xvfb()
-    except RuntimeError as e:
-        if os.environ.get("CI"):
-            raise
-        pytest.skip(str(e))
-    yield name
-    stop(proc)
+    yield from xvfb_display()
 
 
 @pytest.mark.gui

@@ -56,3 +56,26 @@ def env_with_display(display: str) -> dict[str, str]:
     env = dict(os.environ)
     env["DISPLAY"] = display
     return env
+
+
+def xvfb_display():
+    """A generator for a module-scoped pytest fixture: a private Xvfb as $DISPLAY (skipped with the reason when
+    Xvfb cannot start, except in CI where that is a failure), $DISPLAY restored and the server stopped after."""
+    import pytest
+
+    try:
+        proc, name = start_xvfb()
+    except RuntimeError as e:
+        if os.environ.get("CI"):
+            raise
+        pytest.skip(str(e))
+    old = os.environ.get("DISPLAY")
+    os.environ["DISPLAY"] = name
+    try:
+        yield name
+    finally:
+        if old is None:
+            os.environ.pop("DISPLAY", None)
+        else:
+            os.environ["DISPLAY"] = old
+        stop(proc)

@@ -46,8 +46,8 @@ def load_avatar(path: str | Path) -> Avatar:
     if p.is_dir():
         if is_gha_folder(p):
             return import_gha(p)
-        raise AvatarFileError(p, "is a folder, but not a Gaussian-Head-Avatar checkpoint folder "
-                              "(no gaussianhead_latest)")
+        raise AvatarFileError(p, "is a directory, not an avatar file (nor a Gaussian-Head-Avatar checkpoint "
+                              "folder: no gaussianhead_latest)")
     try:
         with open_regular(p, "an avatar file") as fh:  # no FIFO, device or directory: nothing read without end
             head = fh.read(len(MAGIC))
