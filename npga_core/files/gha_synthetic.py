@@ -4,8 +4,9 @@
 `supres_latest`: the key names and shapes of lib/module/GaussianHeadModule.py (xyz, feature,
 landmarks_3d_neutral, scales, rotation, opacity and six `*_mlp.convN` Conv1d layers) and lib/network/Upsampler.py,
 with GHA's default sizes from config/train_gaussianhead_N031.yaml. The head is a shell with the landmarks on its
-face, so near, blended and far Gaussians are all present; weights are random but scaled so that the colours,
-offsets and deformations stay in plausible ranges.
+face, so near, blended and far Gaussians are all present; the features are smooth over the head as GHA
+initialises them; weights are random but scaled so that the colours, offsets and deformations stay in plausible
+ranges.
 """
 
 from __future__ import annotations
@@ -36,6 +37,15 @@ def _dims(feature_dim: int, exp_dim: int, hidden: int, channels: int, freqs: int
             "pose_attributes": [feature_dim + pose, h2, h2, 8]}
 
 
+def _smooth_features(xyz: torch.Tensor, width: int, g: torch.Generator) -> torch.Tensor:
+    """Features as GHA starts them (train_gaussianhead.py: atanh of its mesh head's per-vertex features, a tanh MLP
+    of the encoded position, so smooth over the head), plus a little per-Gaussian variation from training."""
+    enc = torch.cat([xyz] + [f(xyz * 2.0**k) for k in range(4) for f in (torch.sin, torch.cos)], 1)
+    hidden = torch.relu(enc @ (torch.randn(enc.shape[1], 64, generator=g) * 0.8))
+    field = torch.tanh(hidden @ (torch.randn(64, width, generator=g) * 0.3)).clamp(-0.95, 0.95)
+    return torch.atanh(field) + 0.05 * torch.randn(len(xyz), width, generator=g)
+
+
 def gha_state_dicts(n: int = 2000, seed: int = 0, feature_dim: int = FEATURE_DIM, exp_dim: int = EXP_DIM,
                     hidden: int = 256, channels: int = 32, freqs: int = POS_FREQ,
                     capacity: int = SUPRES_CAPACITY) -> tuple[dict[str, torch.Tensor], dict[str, torch.Tensor]]:
@@ -52,7 +62,7 @@ def gha_state_dicts(n: int = 2000, seed: int = 0, feature_dim: int = FEATURE_DIM
     spacing = np.sqrt(4 * np.pi * 1.2**2 / n)
     state: dict[str, torch.Tensor] = {
         "xyz": torch.tensor(xyz, dtype=torch.float32),
-        "feature": torch.randn(n, feature_dim, generator=g) * 0.5,
+        "feature": _smooth_features(torch.tensor(xyz, dtype=torch.float32), feature_dim, g),
         "landmarks_3d_neutral": torch.tensor(landmarks, dtype=torch.float32),
         "scales": torch.full((n, 3), float(np.log(spacing * 0.6))) + 0.2 * torch.randn(n, 3, generator=g),
         "rotation": torch.cat([torch.ones(n, 1), torch.zeros(n, 3)], 1) + 0.3 * torch.randn(n, 4, generator=g),
