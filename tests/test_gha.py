@@ -459,3 +459,15 @@ def test_edited_gha_avatar_saves_and_reopens_with_the_same_posed_output(small_gh
     b = read_avatar(path)
     np.testing.assert_array_equal(b.pose(z).means, a.pose(z).means)
     np.testing.assert_array_equal(b.pose(z).latent, a.pose(z).latent)
+
+
+def test_subsets_run_each_network_on_its_rows_only_and_equal_the_full_pass(small_gha):
+    a = import_gha(small_gha)
+    poser = FastPoser(a, chunk=64, threads=2)
+    assert 0.0 < poser.reach < 1.0  # the blended networks skip the rows they do not reach
+    index = np.sort(np.random.default_rng(9).choice(len(a), 300, replace=False))
+    rows = poser.subset(index)
+    assert rows.spans and all(b - a_ < len(index) for a_, b in rows.spans.values())
+    z = np.random.default_rng(10).normal(0, 1, a.code_dim).astype(np.float32)
+    torch.testing.assert_close(poser.offsets(z, rows=rows), poser.offsets(z)[torch.from_numpy(index)], rtol=1e-4,
+                               atol=1e-6)

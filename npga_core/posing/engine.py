@@ -83,7 +83,7 @@ class EngineOptions:
     device: str = "cpu"  # "cpu", "cuda", "mps" or "auto"; previews run only on the CPU path
     preview: bool = True  # answer slider moves with previews when exact poses are slow
     instant_ms: float = 50.0  # below this exact pose time, "auto" requests are answered exactly
-    probes: int = 2048  # probe Gaussians of the preview
+    probes: int = 2048  # probe Gaussians of the preview (more, up to 4x, where blended networks reach few rows)
     neighbours: int = 8  # probes per Gaussian
     fit_codes: int = 8  # sampled codes the preview weights are fitted to (0: geometric weights only)
     cache_dir: str | None = None  # where preview models and bakes are cached (None: next to the avatar)
@@ -354,11 +354,19 @@ class _Worker:
         return True
 
     # -- preview model ---------------------------------------------------------------------------------
+    @property
+    def _probes(self) -> int:
+        """Probe count: the option, times up to 4 where blended networks reach only part of the rows, so the
+        probes cost what `probes` probes cost with every network on every row (a probe runs only the networks
+        that reach it)."""
+        reach = self.poser.reach if self.poser is not None else 1.0
+        return int(round(self.opts.probes * min(4.0, 1.0 / max(reach, 1e-6)) / 256)) * 256 or self.opts.probes
+
     def _preview_path(self) -> Path:
         from npga_core.posing.preview import preview_cache_path
 
         o = self.opts
-        return preview_cache_path(self.path, self.key, o.probes, o.neighbours, o.fit_codes, o.cache_dir)
+        return preview_cache_path(self.path, self.key, self._probes, o.neighbours, o.fit_codes, o.cache_dir)
 
     def _start_preview(self) -> None:
         """Previews from the cached fitted model, else from geometric weights while the fit runs."""
@@ -369,11 +377,11 @@ class _Worker:
         if model is not None:
             self.status["preview_model"] = "cached"
         else:
-            model = PreviewModel.geometric(self.avatar.cloud.means, o.probes, o.neighbours)
+            model = PreviewModel.geometric(self.avatar.cloud.means, self._probes, o.neighbours)
             self.status["preview_model"] = "geometric"
             if o.fit_codes:
                 codes = PreviewModel.sample_codes(self.avatar, o.fit_codes)
-                self.fit = PreviewFit(poser, codes, self.avatar.neutral_code(), o.probes, o.neighbours)
+                self.fit = PreviewFit(poser, codes, self.avatar.neutral_code(), self._probes, o.neighbours)
         self.previewer = Previewer(poser, model)
         self._send_status(preview_precision=self.previewer.precision)
 

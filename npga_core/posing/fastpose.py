@@ -380,11 +380,28 @@ class FastPoser:
     def subset(self, index: np.ndarray) -> RowSet:
         """The rows `index` with their first-layer terms cached, for repeated `offsets(..., rows=)` calls (every
         network runs on every row of a subset; blend weights zero what a network does not reach)."""
-        idx = torch.from_numpy(np.asarray(index, np.int64)).to(self.device)
+        index = np.asarray(index, np.int64)
+        idx = torch.from_numpy(index).to(self.device)
         mu, f = self.rows.means.index_select(0, idx), self.rows.features.index_select(0, idx)
         weights = {k: w.index_select(0, idx) for k, w in self.rows.weights.items()}
-        return RowSet(mu, f, {k: n.precompute(mu, f) for k, n in self.nets.items()}, np.asarray(index, np.int64),
-                      weights)
+        spans = {}
+        if len(index) and np.all(index[1:] > index[:-1]):  # ascending rows: a network's range stays a range
+            spans = {k: (int(np.searchsorted(index, a)), int(np.searchsorted(index, b)))
+                     for k, (a, b) in self.rows.spans.items()}
+        first = {}
+        for k, n in self.nets.items():
+            a, b = spans.get(k, (0, len(index)))
+            first[k] = n.precompute(mu[a:b], f[a:b])
+        return RowSet(mu, f, first, index, weights, spans)
+
+    @property
+    def reach(self) -> float:
+        """The share of the work of every network on every row that the exact path does (1 without blended
+        networks; less where blended networks run only on the rows they reach)."""
+        chains = self._lanes[0].chains
+        full = sum(c.flops_per_row for c in chains.values())
+        share = {k: (b - a) / max(self.n, 1) for k, (a, b) in self.rows.spans.items()}
+        return sum(c.flops_per_row * share.get(k, 1.0) for k, c in chains.items()) / max(full, 1)
 
     @torch.no_grad()
     def offsets(self, z: np.ndarray, out: torch.Tensor | None = None, rows: RowSet | None = None,

@@ -292,15 +292,16 @@ class ProbeNets:
     """
 
     def __init__(self, poser: FastPoser, probes: np.ndarray, precision: str = "auto"):
-        plain = not any(n.config.skips for n in poser.nets.values())  # the bf16 chain has no skip layers
+        self.rows = poser.subset(probes)
+        # the bf16 chain runs every network on every probe, without skip layers
+        plain = not any(n.config.skips for n in poser.nets.values()) and not self.rows.spans
         if precision == "auto":
             precision = "bf16" if poser.device.type == "cpu" and plain and bf16_speedup() >= 1.5 else "fp32"
         if precision == "bf16" and not plain:
-            raise ValueError("bf16 probes need networks without skip layers")
+            raise ValueError("bf16 probes need networks without skip layers that reach every probe")
         if precision not in ("fp32", "bf16"):
             raise ValueError(f"precision must be 'auto', 'fp32' or 'bf16', got {precision!r}")
         self.poser, self.precision = poser, precision
-        self.rows = poser.subset(probes)
         self._layers = {}
         if precision == "bf16":
             for key, chain in poser._lanes[0].chains.items():
