@@ -471,3 +471,18 @@ def test_subsets_run_each_network_on_its_rows_only_and_equal_the_full_pass(small
     z = np.random.default_rng(10).normal(0, 1, a.code_dim).astype(np.float32)
     torch.testing.assert_close(poser.offsets(z, rows=rows), poser.offsets(z)[torch.from_numpy(index)], rtol=1e-4,
                                atol=1e-6)
+
+
+def test_the_window_cnn_stops_between_operations_when_cancelled(small_gha):
+    from npga_core.model.cnn import run_cnn_steps
+
+    cnn = import_gha(small_gha).cnn
+    image = np.random.default_rng(0).random((10, 12, SMALL["channels"]), dtype=np.float32)
+    np.testing.assert_allclose(run_cnn_steps(cnn, image, lambda: False), cnn.refine(image), atol=1e-6)
+    calls = []
+
+    def cancel_after_three() -> bool:
+        calls.append(1)
+        return len(calls) > 3
+
+    assert run_cnn_steps(cnn, image, cancel_after_three) is None and len(calls) == 4

@@ -233,8 +233,17 @@ class ScreenCNN(nn.Module):
     def forward(self, x: torch.Tensor) -> torch.Tensor:
         """x: (B, C, height, width) -> (B, 3, height * upsample, width * upsample)."""
         h = x
+        for step in self.steps(x):
+            h = step
+        return h
+
+    def steps(self, x: torch.Tensor):
+        """The forward pass one operation at a time: yields the activations after each (the output last), so a
+        caller can stop between operations."""
+        h = x
         convs = iter(self.convs)
-        for o in self.config.ops or []:
+        ops = self.config.ops or []
+        for i, o in enumerate(ops):
             kind = o["op"]
             if kind == "conv":
                 h = next(convs)(h)
@@ -245,7 +254,9 @@ class ScreenCNN(nn.Module):
             else:
                 h = nn.functional.interpolate(h, scale_factor=o["factor"], mode=o["mode"],
                                               align_corners=o["align_corners"] if o["mode"] == "bilinear" else None)
-        return x[:, :3] + h if self.config.residual else h
+            if i == len(ops) - 1 and self.config.residual:
+                h = x[:, :3] + h
+            yield h
 
     @property
     def device(self) -> torch.device:
@@ -271,6 +282,21 @@ class ScreenCNN(nn.Module):
     def refine(self, image: np.ndarray) -> np.ndarray:
         """Refine an (H, W, C) float image into (H*s, W*s, 3) float32, clamped to [0, 1], on `device`."""
         return run_cnn(self, image, self.device)
+
+
+@torch.no_grad()
+def run_cnn_steps(cnn: ScreenCNN, image: np.ndarray, cancelled) -> np.ndarray | None:
+    """`run_cnn` on the CNN's device one operation at a time; None as soon as `cancelled()` is true between two
+    operations (for CNNs that cannot run in bands: a refinement the view has left stops within one operation)."""
+    x = torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)).permute(2, 0, 1)[None]
+    x = x.to(cnn.device).contiguous(memory_format=torch.channels_last)
+    out = None
+    for step in cnn.steps(x):
+        if cancelled():
+            return None
+        out = step
+    assert out is not None
+    return out[0].clamp_(0.0, 1.0).permute(1, 2, 0).contiguous().cpu().numpy()
 
 
 @torch.no_grad()

@@ -32,7 +32,7 @@ import torch
 
 from npga_core.camera.cameras import Camera
 from npga_core.inspection.colouring import FeaturePCA, colour_map, robust_range
-from npga_core.model.cnn import ScreenCNN, run_cnn
+from npga_core.model.cnn import ScreenCNN, run_cnn, run_cnn_steps
 from npga_view.rendering.factory import choose_path
 from npga_view.rendering.renderer import load_shader
 
@@ -309,10 +309,14 @@ class Refiner:
         halo = self.cnn.config.band_halo()  # None: the CNN needs the whole image at once (instance norm, upsampling)
         stop = threading.Event()
 
+        cnn = self.cnn
+
         def run() -> np.ndarray | None:
             t2 = time.perf_counter()
             if device.type == "cpu" and halo is not None:  # in bands: a refinement the person left stops early
                 out = _run_banded(traced, device, image, halo, stop.is_set)
+            elif device.type == "cpu":  # the whole image, one operation at a time: it stops between two
+                out = run_cnn_steps(cnn, image, stop.is_set)
             else:
                 out = _run_traced(traced, device, image)
             timings["cnn"] = (time.perf_counter() - t2) * 1e3
