@@ -74,7 +74,7 @@ def summary(avatar: Avatar, path: str, load_s: float) -> str:
                               f"up{o['factor']}" if o["op"] == "upsample" else
                               "IN" if o["op"] == "instance_norm" else o["name"] for o in cfg.ops or [])
         scale = f", x{cfg.upsample} upsampling" if cfg.upsample > 1 else ""
-        lines.append(f"  CNN: {len(cfg.layers)} convolutions on {cfg.input} ({layers})"
+        lines.append(f"  CNN: {len(cfg.layers)} layers on {cfg.input} ({layers})"
                      f"{', residual' if cfg.residual else ''}{scale}, {cfg.macs_per_pixel() / 1e6:.2f} MMAC/pixel")
     lines.append(f"  expression dim: {avatar.code_dim}")
     ex = avatar.expression
