@@ -24,11 +24,12 @@ def _ssim_reference(a: np.ndarray, b: np.ndarray) -> float:
     g = np.exp(-x ** 2 / (2 * 1.5 ** 2))
     k = np.outer(g, g) / np.outer(g, g).sum()
     vals = []
+
+    def f(z: np.ndarray) -> np.ndarray:
+        return np.einsum("ijkl,kl->ij", np.lib.stride_tricks.sliding_window_view(z, k.shape), k)
+
     for c in range(3):
         p, q = a[..., c], b[..., c]
-        win = np.lib.stride_tricks.sliding_window_view
-        def f(z):
-            return np.einsum("ijkl,kl->ij", win(z, k.shape), k)
         mp, mq = f(p), f(q)
         vp, vq, cpq = f(p * p) - mp ** 2, f(q * q) - mq ** 2, f(p * q) - mp * mq
         s = ((2 * mp * mq + c1) * (2 * cpq + c2)) / ((mp ** 2 + mq ** 2 + c1) * (vp + vq + c2))
