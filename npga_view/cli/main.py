@@ -16,6 +16,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "render": ("npga_view.cli.render", "render an avatar headless to PNG or MP4"),
     "bench": ("npga_view.cli.bench", "measure the dynamics (exact, preview, playback) on this machine"),
     "export": ("npga_view.cli.export", "export the avatar posed at one expression as a 3DGS .ply"),
+    "evaluate": ("npga_view.cli.evaluate", "render the avatar from a capture's views and score it (PSNR/SSIM/LPIPS)"),
 }
 DEFAULT = "view"
 USAGE = "npga-view [AVATAR] [viewer options] | npga-view COMMAND [options]"
