@@ -103,7 +103,7 @@ def write_plot(path: Path, rows: list, width: int = 900, panel: int = 240) -> No
                 cv2.circle(canvas, p, 3, col, -1, cv2.LINE_AA)
             if m == 0:
                 cv2.putText(canvas, str(cam), (width - right - 150, y0 + 20 + 16 * k), cv2.FONT_HERSHEY_SIMPLEX,
-                            0.45, col[::-1], 1, cv2.LINE_AA)
+                            0.45, col, 1, cv2.LINE_AA)
         cv2.putText(canvas, f"frames {frames[0]}..{frames[-1]}", (left, y0 + panel - 8),
                     cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
     cv2.imwrite(str(path), canvas[..., ::-1])
