@@ -17,6 +17,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "bench": ("npga_view.cli.bench", "measure the dynamics (exact, preview, playback) on this machine"),
     "export": ("npga_view.cli.export", "export the avatar posed at one expression as a 3DGS .ply"),
     "import": ("npga_view.cli.importer", "convert another method's checkpoint (gha) into an .npga avatar"),
+    "evaluate": ("npga_view.cli.evaluate", "render the avatar from a capture's views and score it (PSNR/SSIM/LPIPS)"),
 }
 DEFAULT = "view"
 USAGE = "npga-view [AVATAR] [viewer options] | npga-view COMMAND [options]"

@@ -1,0 +1,235 @@
+"""`npga-view evaluate AVATAR --capture DIR --out REPORT/`: the avatar rendered from each captured view and scored.
+
+Every selected (frame, camera) is rendered headless with the capture's own camera (its resolution and intrinsics,
+so pixels correspond), through the CNN when the avatar has one, and scored with PSNR, SSIM and (when its weights
+are on the machine) LPIPS (`npga_core.evaluation.metrics`). Masking: with the capture's masks, capture and render
+are both composited on `--background` outside the mask (as the paper's evaluation does), else whole images.
+Writes metrics.csv, summary.md, metrics.png (metrics over frames), the worst views' capture/render/difference
+PNGs and problems.txt (one line per missing or unreadable file).
+
+`--protocol npga` follows the paper's evaluation: 550x802 images (captures downsampled to cover, then cropped at
+the centre), face masks when the capture has them (else the alpha matte, said in the summary), the frontal
+camera held out (only it is scored), a summary laid out like the paper's Table 1.
+"""
+
+from __future__ import annotations
+
+import argparse
+import sys
+import time
+from dataclasses import dataclass
+from pathlib import Path
+
+import numpy as np
+
+from npga_core.camera.cameras import Camera
+from npga_core.errors import AvatarFileError
+
+NPGA_SIZE = (550, 802)  # (width, height) of the paper's metrics
+#: NeRSemble's frontal camera (camera id 8 of the rig), held out for evaluation in the paper
+NERSEMBLE_FRONTAL = "222200037"
+
+
+class EvaluateError(Exception):
+    """Bad arguments or inputs of `evaluate`, one line, exit code 2."""
+
+
+def add_arguments(p: argparse.ArgumentParser) -> None:
+    p.add_argument("avatar", help="a .npga checkpoint, a 3DGS .ply, or 'demo'")
+    p.add_argument("--capture", required=True, type=Path, help="NeRSemble sequence folder or GHA preprocessed folder")
+    p.add_argument("--sequence", type=Path, help="expression codes of the capture's frames (default: neutral)")
+    p.add_argument("--cameras", help="comma-separated camera ids (default: all)")
+    p.add_argument("--frames", help="frames: A,B,C-D (default: all)")
+    p.add_argument("--no-cnn", action="store_true", help="score the splat image, not the CNN's")
+    p.add_argument("--background", default="1,1,1", help="background R,G,B (0..1 or 0..255); masked-out pixels")
+    p.add_argument("--mask", choices=("auto", "alpha", "face", "none"), default="auto",
+                   help="auto: face masks, else alpha mattes, else whole images")
+    p.add_argument("--protocol", choices=("npga",), help="the paper's evaluation protocol (see module doc)")
+    p.add_argument("--worst", type=int, default=3, help="views whose capture/render/difference are written")
+    p.add_argument("--save-renders", action="store_true", help="also write each render as renders/F_CAM.npy")
+    p.add_argument("--cache-mb", type=int, default=1024, help="memory for cached capture images")
+    p.add_argument("--out", required=True, type=Path, help="report folder (created)")
+
+
+def _int_list(text: str) -> set[int]:
+    out: set[int] = set()
+    try:
+        for part in text.split(","):
+            a, _, b = part.partition("-")
+            out.update(range(int(a), int(b) + 1) if b else [int(a)])
+    except ValueError:
+        raise EvaluateError(f"--frames {text!r}: expected numbers and ranges like 0,5,10-20") from None
+    return out
+
+
+@dataclass
+class Row:
+    frame: int
+    camera: str
+    psnr: float
+    ssim: float
+    lpips: float | None
+    masked: str
+
+
+def protocol_view(cam: Camera, image: np.ndarray, mask: np.ndarray | None, size=NPGA_SIZE):
+    """The paper's framing: scale so the image covers `size` (area filter), crop the centre; the camera alike."""
+    import cv2
+    w, h = size
+    s = max(w / cam.width, h / cam.height)
+    sw, sh = max(w, round(cam.width * s)), max(h, round(cam.height * s))
+    x0, y0 = (sw - w) // 2, (sh - h) // 2
+
+    def fit(a: np.ndarray) -> np.ndarray:
+        return cv2.resize(a, (sw, sh), interpolation=cv2.INTER_AREA)[y0:y0 + h, x0:x0 + w]
+
+    sx, sy = sw / cam.width, sh / cam.height
+    c = Camera(cam.world_to_camera, cam.fx * sx, cam.fy * sy, cam.cx * sx - x0, cam.cy * sy - y0, w, h)
+    return c, fit(image), None if mask is None else fit(mask)
+
+
+def frontal_camera(capture) -> str:
+    """NeRSemble's frontal serial when present, else the camera looking most along the rig's mean direction."""
+    cams = capture.cameras
+    if NERSEMBLE_FRONTAL in cams:
+        return NERSEMBLE_FRONTAL
+    first = {c: v.camera for (f, c), v in sorted(capture.views.items())}
+    dirs = {c: cam.camera_to_world[:3, 2] for c, cam in first.items()}
+    mean = np.mean(list(dirs.values()), axis=0)
+    return max(dirs, key=lambda c: float(dirs[c] @ mean))
+
+
+def _progress(i: int, n: int, t0: float) -> None:
+    done = int(30 * i / max(n, 1))
+    rate = i / max(time.perf_counter() - t0, 1e-9)
+    print(f"\r[{'#' * done}{'.' * (30 - done)}] {i}/{n} views, {rate:.1f}/s", end="" if i < n else "\n",
+          file=sys.stderr, flush=True)
+
+
+def run(args) -> int:
+    try:
+        return _evaluate(args)
+    except EvaluateError as e:
+        print(f"npga-view evaluate: error: {e}", file=sys.stderr)
+        return 2
+
+
+def _evaluate(args) -> int:
+    from npga_core.evaluation.capture import code_index, load_capture
+    from npga_core.evaluation.metrics import Lpips, lpips_status, score
+    from npga_core.files.loading import load_avatar, load_sequence
+    from npga_view.cli.evaluate_report import write_report
+    from npga_view.cli.render import parse_background
+    from npga_view.rendering.factory import create_renderer
+    from npga_view.rendering.gl import GLUnavailableError, create_headless_context
+
+    background = parse_background(args.background)
+    capture = load_capture(args.capture, budget_bytes=args.cache_mb << 20)
+    problems = list(capture.problems)
+    avatar = load_avatar(args.avatar)
+    seq = None
+    if args.sequence is not None:
+        seq = load_sequence(args.sequence)
+        seq.check_dim(avatar.code_dim, args.sequence)
+    frames = capture.frames if args.frames is None else sorted(set(capture.frames) & _int_list(args.frames))
+    cameras = capture.cameras
+    if args.cameras:
+        wanted = [c.strip() for c in args.cameras.split(",") if c.strip()]
+        for c in wanted:
+            if c not in cameras:
+                problems.append(f"{args.capture}: camera {c} is not in the capture")
+        cameras = [c for c in cameras if c in wanted]
+    notes: list[str] = []
+    if args.protocol == "npga":
+        held = frontal_camera(capture)
+        cameras = [held]
+        notes.append(f"protocol npga: {NPGA_SIZE[0]}x{NPGA_SIZE[1]} images (captures downsampled to cover, "
+                     f"centre-cropped), held-out frontal camera {held} only")
+    mask_kind = args.mask
+    if mask_kind == "auto":
+        mask_kind = "face" if capture.has_face_masks else "alpha"
+    if mask_kind == "face" and not capture.has_face_masks:
+        raise EvaluateError(f"{args.capture}: --mask face, but the capture has no face masks")
+    if args.protocol == "npga" and mask_kind != "face":
+        notes.append("NO FACE MASKS in this capture: scored inside the alpha matte (neck and torso included), "
+                     "so the numbers are not comparable with the paper's Table 1")
+    views = [(f, c) for f in frames for c in cameras if (f, c) in capture.views]
+    if not views:
+        raise EvaluateError(f"{args.capture}: no views left after --frames/--cameras")
+    ok, lp_note = lpips_status()
+    notes.append(lp_note)
+    lp = Lpips() if ok else None
+    use_cnn = avatar.cnn is not None and not args.no_cnn
+    notes.append("images through the avatar's CNN" if use_cnn else "splat images (no CNN)")
+    out: Path = args.out
+    out.mkdir(parents=True, exist_ok=True)
+    if args.save_renders:
+        (out / "renders").mkdir(exist_ok=True)
+    try:
+        ctx = create_headless_context()
+        first = capture.views[views[0]].camera
+        renderer = create_renderer(ctx, first.width, first.height)
+    except GLUnavailableError as exc:
+        raise EvaluateError(str(exc)) from None
+    rows: list[Row] = []
+    keep: list[tuple[float, int, str, np.ndarray, np.ndarray]] = []
+    posed_frame = None
+    t0 = time.perf_counter()
+    for i, (f, c) in enumerate(views):
+        v = capture.views[(f, c)]
+        try:
+            image = capture.image(v.image_path)
+            path = {"face": v.face_mask_path, "alpha": v.mask_path}.get(mask_kind)
+            mask = capture.image(path, grey=True) if path is not None else None
+        except AvatarFileError as e:
+            problems.append(str(e))
+            continue
+        if mask is not None and mask_kind == "face":
+            mask = (mask > 0).astype(np.float32)
+        cam = v.camera
+        if image.shape[:2] != (cam.height, cam.width):
+            problems.append(f"{v.image_path}: {image.shape[1]}x{image.shape[0]}, other than its camera's "
+                            f"{cam.width}x{cam.height}")
+            continue
+        if args.protocol == "npga":
+            cam, image, mask = protocol_view(cam, image, mask)
+        if posed_frame != f:
+            code = None
+            if seq is not None:
+                k = code_index(seq, f, frames.index(f))
+                if k is None:
+                    problems.append(f"{args.sequence}: no expression code for frame {f}")
+                    continue
+                code = seq.codes[k]
+            renderer.set_gaussians(avatar.pose(code))
+            posed_frame = f
+        render = renderer.render(cam, background)
+        if use_cnn:
+            from npga_view.rendering.refinement import refine_frame
+            render = refine_frame(renderer, avatar.cnn, cam, background, rgb=render)
+            if render.shape[:2] != image.shape[:2]:  # a CNN that upsamples: area-filtered to the capture's size
+                import cv2
+                render = cv2.resize(render, (image.shape[1], image.shape[0]), interpolation=cv2.INTER_AREA)
+        render = np.clip(render, 0.0, 1.0)
+        if args.save_renders:
+            np.save(out / "renders" / f"{f}_{c}.npy", render.astype(np.float32))
+        s = score(render, image, mask, background, lp)
+        rows.append(Row(f, c, s.psnr, s.ssim, s.lpips, mask_kind if s.masked else "none"))
+        keep.append((s.psnr, f, c, image if mask is None else _comp(image, mask, background),
+                     render if mask is None else _comp(render, mask, background)))
+        keep = sorted(keep, key=lambda k: k[0])[:max(args.worst, 0)]
+        _progress(i + 1, len(views), t0)
+    elapsed = time.perf_counter() - t0
+    notes.append(f"{len(rows)} views in {elapsed:.1f} s ({elapsed / max(len(rows), 1) * 1e3:.0f} ms a view)")
+    summary = write_report(out, rows, keep, problems, notes, protocol=args.protocol, avatar=str(args.avatar))
+    print(summary)
+    for line in problems:
+        print(f"problem: {line}", file=sys.stderr)
+    if not rows:
+        raise EvaluateError(f"{args.capture}: no view could be scored ({len(problems)} problems, see problems.txt)")
+    return 0
+
+
+def _comp(image: np.ndarray, mask: np.ndarray, background) -> np.ndarray:
+    from npga_core.evaluation.metrics import composite_background
+    return composite_background(image, mask, background).astype(np.float32)

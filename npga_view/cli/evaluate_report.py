@@ -1,0 +1,109 @@
+"""The files of an `evaluate` report: metrics.csv, summary.md, metrics.png, worst views, problems.txt."""
+
+from __future__ import annotations
+
+import csv
+from pathlib import Path
+
+import numpy as np
+
+COLOURS = [(66, 135, 245), (245, 105, 66), (60, 180, 75), (200, 60, 200), (240, 200, 40), (40, 200, 200)]
+
+
+def _fmt(x: float | None, digits: int) -> str:
+    return "n/a" if x is None else ("inf" if x == float("inf") else f"{x:.{digits}f}")
+
+
+def _mean(values: list) -> float | None:
+    vals = [v for v in values if v is not None]
+    return None if not vals else float(np.mean(vals))
+
+
+def write_report(out: Path, rows: list, worst: list, problems: list[str], notes: list[str],
+                 protocol: str | None = None, avatar: str = "avatar") -> str:
+    """Write the report files into `out`; returns the summary text (also summary.md)."""
+    with open(out / "metrics.csv", "w", newline="") as fh:
+        w = csv.writer(fh)
+        w.writerow(["frame", "camera", "psnr", "ssim", "lpips", "masked"])
+        for r in rows:
+            w.writerow([r.frame, r.camera, f"{r.psnr:.6f}", f"{r.ssim:.6f}",
+                        "" if r.lpips is None else f"{r.lpips:.6f}", r.masked])
+    (out / "problems.txt").write_text("".join(p + "\n" for p in problems))
+    lines = ["| camera | views | PSNR (dB) | SSIM | LPIPS |", "|---|---|---|---|---|"]
+    for cam in sorted({r.camera for r in rows}):
+        sel = [r for r in rows if r.camera == cam]
+        lines.append(f"| {cam} | {len(sel)} | {_fmt(_mean([r.psnr for r in sel]), 2)} | "
+                     f"{_fmt(_mean([r.ssim for r in sel]), 4)} | {_fmt(_mean([r.lpips for r in sel]), 4)} |")
+    overall = (_mean([r.psnr for r in rows]), _mean([r.ssim for r in rows]), _mean([r.lpips for r in rows]))
+    lines.append(f"| **all** | {len(rows)} | {_fmt(overall[0], 2)} | {_fmt(overall[1], 4)} | "
+                 f"{_fmt(overall[2], 4)} |")
+    text = ["# Evaluation", "", *[f"- {n}" for n in notes], f"- masking: {rows[0].masked if rows else 'n/a'}",
+            f"- problems: {len(problems)} (problems.txt)", "", *lines]
+    if protocol == "npga":
+        text += ["", "Laid out like the paper's Table 1 (held-out camera):", "",
+                 "| Method | PSNR↑ | SSIM↑ | LPIPS↓ |", "|---|---|---|---|",
+                 f"| {Path(avatar).name} | {_fmt(overall[0], 2)} | {_fmt(overall[1], 3)} | {_fmt(overall[2], 3)} |"]
+    summary = "\n".join(text) + "\n"
+    (out / "summary.md").write_text(summary)
+    if rows:
+        write_plot(out / "metrics.png", rows)
+    for k, (_, f, c, image, render) in enumerate(worst):
+        write_triplet(out, f"worst{k + 1}_frame{f}_cam{c}", image, render)
+    return summary
+
+
+def _png(path: Path, rgb: np.ndarray) -> None:
+    import cv2
+    img = np.clip(np.asarray(rgb) * 255.0 + 0.5, 0, 255).astype(np.uint8)
+    cv2.imwrite(str(path), img[..., ::-1])
+
+
+def write_triplet(out: Path, stem: str, image: np.ndarray, render: np.ndarray) -> None:
+    """capture, render and |difference| (mean over channels, turbo colours, 0..0.25 full scale) as PNGs."""
+    import cv2
+    _png(out / f"{stem}_image.png", image)
+    _png(out / f"{stem}_render.png", render)
+    diff = np.abs(np.asarray(render, np.float64) - image).mean(axis=2)
+    heat = cv2.applyColorMap(np.clip(diff / 0.25 * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_TURBO)
+    cv2.imwrite(str(out / f"{stem}_diff.png"), heat)
+
+
+def write_plot(path: Path, rows: list, width: int = 900, panel: int = 240) -> None:
+    """PSNR and SSIM over frames, one line per camera, drawn with OpenCV."""
+    import cv2
+    metrics = [("PSNR (dB)", [r.psnr for r in rows]), ("SSIM", [r.ssim for r in rows])]
+    if any(r.lpips is not None for r in rows):
+        metrics.append(("LPIPS", [r.lpips for r in rows]))
+    canvas = np.full((panel * len(metrics), width, 3), 255, np.uint8)
+    frames = sorted({r.frame for r in rows})
+    cams = sorted({r.camera for r in rows})
+    left, right, top, bottom = 70, 20, 30, 30
+    x_of = {f: left + (width - left - right) * (i / max(len(frames) - 1, 1)) for i, f in enumerate(frames)}
+    for m, (name, values) in enumerate(metrics):
+        y0 = m * panel
+        finite = [v for v in values if v is not None and np.isfinite(v)]
+        lo, hi = (min(finite), max(finite)) if finite else (0.0, 1.0)
+        if hi - lo < 1e-9:
+            lo, hi = lo - 0.5 * max(abs(lo), 1e-3), hi + 0.5 * max(abs(hi), 1e-3)
+        def y_of(v: float, y0: int = y0, lo: float = lo, hi: float = hi) -> int:
+            v = min(max(v, lo), hi)
+            return int(y0 + top + (panel - top - bottom) * (1 - (v - lo) / (hi - lo)))
+        cv2.rectangle(canvas, (left, y0 + top), (width - right, y0 + panel - bottom), (180, 180, 180), 1)
+        cv2.putText(canvas, name, (left, y0 + 20), cv2.FONT_HERSHEY_SIMPLEX, 0.55, (0, 0, 0), 1, cv2.LINE_AA)
+        for v in (lo, hi):
+            cv2.putText(canvas, f"{v:.3g}", (5, y_of(v) + 5), cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1,
+                        cv2.LINE_AA)
+        for k, cam in enumerate(cams):
+            col = COLOURS[k % len(COLOURS)]
+            pts = [(int(x_of[r.frame]), y_of(val)) for r, val in zip(rows, values, strict=True)
+                   if r.camera == cam and val is not None and np.isfinite(val)]
+            for a, b in zip(pts, pts[1:], strict=False):
+                cv2.line(canvas, a, b, col, 2, cv2.LINE_AA)
+            for p in pts:
+                cv2.circle(canvas, p, 3, col, -1, cv2.LINE_AA)
+            if m == 0:
+                cv2.putText(canvas, str(cam), (width - right - 150, y0 + 20 + 16 * k), cv2.FONT_HERSHEY_SIMPLEX,
+                            0.45, col, 1, cv2.LINE_AA)
+        cv2.putText(canvas, f"frames {frames[0]}..{frames[-1]}", (left, y0 + panel - 8),
+                    cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
+    cv2.imwrite(str(path), canvas[..., ::-1])
