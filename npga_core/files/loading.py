@@ -10,6 +10,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from npga_core.errors import AvatarFileError
+from npga_core.files.arkit_takes import TAKE_SUFFIXES, read_take_sequence
 from npga_core.files.checkpoint import MAGIC, read_avatar
 from npga_core.files.places import bundled_path
 from npga_core.files.ply import read_ply
@@ -55,9 +56,10 @@ def load_avatar(path: str | Path) -> Avatar:
     raise AvatarFileError(p, f"not an .npga checkpoint or a PLY file (starts with {head[:8]!r})")
 
 
-def load_sequence(path: str | Path, fps: float | None = None) -> ExpressionSequence:
+def load_sequence(path: str | Path, fps: float | None = None, basis=None) -> ExpressionSequence:
     """Load `.npzseq`/`.npz` (codes under a common key), `.npy` (T, D), a MonoNPHM tracking folder, or a
-    NeRSemble FLAME tracking / GaussianAvatars flame_param npz, with the head pose as that source defines it."""
+    NeRSemble FLAME tracking / GaussianAvatars flame_param npz, with the head pose as that source defines it;
+    ARKit takes (`.csv` Live Link Face, `.json`) through `basis` (a `BlendshapeBasis`; default the demo's)."""
     path = Path(path)
     if path.is_dir():
         seq = load_mononphm_folder(path)
@@ -68,6 +70,8 @@ def load_sequence(path: str | Path, fps: float | None = None) -> ExpressionSeque
         elif codes.ndim == 3 and codes.shape[1] == 1:
             codes = codes[:, 0]
         seq = ExpressionSequence(codes, DEFAULT_FPS, path.stem)
+    elif path.suffix.lower() in TAKE_SUFFIXES:
+        seq = read_take_sequence(path, basis)
     else:
         regular_file(path, "a sequence file")
         seq = (tracker_of(npz_names(path)) or read_npz)(path)
