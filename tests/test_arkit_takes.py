@@ -159,13 +159,22 @@ def test_livelink_csv_columns_by_name_timecodes_rate_and_head(tmp_path):
 
 def test_dropped_frames_are_timed_by_their_timecodes(tmp_path):
     p = tmp_path / "gap.csv"
-    # 30 fps, frames 0, 1, 3 (2 dropped): the sequence has 4 frames, frame 2 interpolated
-    write_csv(p, [(f"00:00:01:{f:02d}.000", {"JawOpen": f / 10}) for f in (0, 1, 3, 29)])
+    # 30 fps, frames 0, 1, 3 (2 dropped): frame 2 is interpolated; the take ends at frame 0 of the next second
+    rows = [(f"00:00:01:{f:02d}.000", {"JawOpen": f / 10}) for f in (0, 1, 3, 29)]
+    write_csv(p, [*rows, ("00:00:02:00.000", {"JawOpen": 3.0})])
     t = read_livelink_csv(p)
     assert t.fps == 30.0
     seq = load_sequence(p, basis=BlendshapeBasis(("jawOpen",), np.eye(1), np.zeros(1)))
-    assert len(seq) == 30 and seq.fps == 30.0
+    assert len(seq) == 31 and seq.fps == 30.0
     np.testing.assert_allclose(seq.codes[:4, 0], [0.0, 0.1, 0.2, 0.3], atol=1e-6)
+
+
+def test_rate_within_one_second_is_live_link_faces_60():
+    from npga_core.files.arkit_takes import timecode_rate
+
+    assert timecode_rate(np.array([5.0, 5.0]), np.array([3.0, 4.0])) == 60.0
+    assert timecode_rate(np.array([5.0, 6.0]), np.array([24.0, 0.0])) == 25.0
+    assert timecode_rate(np.array([5.0, 6.0]), np.array([59.0, 0.0])) == 60.0
 
 
 def test_recorded_take_reopens(tmp_path):

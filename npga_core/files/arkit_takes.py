@@ -3,7 +3,7 @@
 - Live Link Face CSV (Epic's iPhone app): a header ``Timecode,BlendShapeCount,<52 shapes>,HeadYaw,...,
   RightEyeRoll`` (PascalCase; the app's column order is not its UDP packet order, so columns are read by
   name) and one row per frame; ``Timecode`` is ``HH:MM:SS:FF.sss`` (frame FF at the take's rate, .sss a
-  fraction of a frame). The rate is the smallest common rate above every FF seen. Head angles (radians) give
+  fraction of a frame). The rate is the smallest common rate above every FF seen (`timecode_rate`). Head angles (radians) give
   the head pose; eye angles are kept; angle columns that are all zero mean "not recorded".
 - JSON: LAM Audio2Expression's ``{"names", "metadata": {"fps"}, "frames": [{"weights", "time"}]}``;
   MediaPipe face-landmarker category lists (per frame ``[{"categoryName"|"category_name", "score"}]``,
@@ -76,9 +76,12 @@ def parse_timecode(text: str) -> tuple[int, float]:
     return h * 3600 + mi * 60 + s, ff + frac
 
 
-def timecode_rate(frames: np.ndarray) -> float:
-    """The smallest common rate above every frame field seen."""
+def timecode_rate(secs: np.ndarray, frames: np.ndarray) -> float:
+    """The take's rate from its timecodes: the smallest common rate above every frame field seen when the take
+    crosses a second; within one second that is ambiguous and Live Link Face's 60 is taken when it fits."""
     top = int(np.floor(np.max(frames))) if len(frames) else 0
+    if len(secs) and secs.max() == secs.min() and top < 60:
+        return 60.0
     for r in RATES:
         if top < r:
             return r
@@ -94,7 +97,7 @@ def timecode_seconds(codes: list[str], path: str | Path) -> tuple[np.ndarray, fl
     secs = np.array([p[0] for p in parsed], np.float64)
     frames = np.array([p[1] for p in parsed], np.float64)
     try:
-        rate = timecode_rate(frames)
+        rate = timecode_rate(secs, frames)
     except ValueError as e:
         raise AvatarFileError(path, str(e)) from None
     secs = np.where(secs < secs[0] - 43200, secs + 86400, secs)  # a take recorded across midnight
