@@ -10,6 +10,7 @@ values), and its `decode` (lines 220-243) reads the sub-frame as ``!f``; the 61 
 
 from __future__ import annotations
 
+import socket
 import struct
 import time
 import warnings
@@ -84,11 +85,11 @@ def test_receiver_over_loopback_counts_and_ignores_10000_malformed_packets():
     rng = np.random.default_rng(0)
     with LiveLinkReceiver(port=0, smoothing=None) as rx:
         assert rx.address[0] == "127.0.0.1"
-        tx = __import__("socket").socket(2, 2)  # AF_INET, SOCK_DGRAM
+        tx = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         try:
             good = pylivelinkface_packet(values(eyeBlinkLeft=1.0), 1000)
             sent = 0
-            for batch in range(50):
+            for _batch in range(50):
                 for _ in range(200):
                     tx.sendto(malformed(rng, good), rx.address)
                 sent += 200

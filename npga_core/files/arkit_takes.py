@@ -3,8 +3,8 @@
 - Live Link Face CSV (Epic's iPhone app): a header ``Timecode,BlendShapeCount,<52 shapes>,HeadYaw,...,
   RightEyeRoll`` (PascalCase; the app's column order is not its UDP packet order, so columns are read by
   name) and one row per frame; ``Timecode`` is ``HH:MM:SS:FF.sss`` (frame FF at the take's rate, .sss a
-  fraction of a frame). The rate is the smallest common rate above every FF seen (`timecode_rate`). Head angles (radians) give
-  the head pose; eye angles are kept; angle columns that are all zero mean "not recorded".
+  fraction of a frame). The rate is the smallest common rate above every FF seen (`timecode_rate`). Head
+  angles (radians) give the head pose; eye angles are kept; angle columns all zero mean "not recorded".
 - JSON: LAM Audio2Expression's ``{"names", "metadata": {"fps"}, "frames": [{"weights", "time"}]}``;
   MediaPipe face-landmarker category lists (per frame ``[{"categoryName"|"category_name", "score"}]``,
   optionally under ``categories``/``faceBlendshapes``, with ``timestampMs``/``timestamp_ms``), as a list or
