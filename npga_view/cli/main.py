@@ -16,6 +16,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "render": ("npga_view.cli.render", "render an avatar headless to PNG or MP4"),
     "bench": ("npga_view.cli.bench", "measure the dynamics (exact, preview, playback) on this machine"),
     "export": ("npga_view.cli.export", "export the avatar posed at one expression as a 3DGS .ply"),
+    "fit-blendshapes": ("npga_view.cli.fit_blendshapes", "fit a blendshape basis from an ARKit take and its codes"),
 }
 DEFAULT = "view"
 USAGE = "npga-view [AVATAR] [viewer options] | npga-view COMMAND [options]"
