@@ -11,9 +11,10 @@ from pathlib import Path
 
 from npga_core.demo.expression_map import ExpressionMap
 from npga_core.errors import AvatarFileError
+from npga_core.files.basis_file import DEMO_SOURCE, bundled_demo_basis
 from npga_core.model.blendshapes import BlendshapeBasis
 
-SOURCE = "demo: z = M w + b of npga_core.demo.expression_map (exact)"
+SOURCE = DEMO_SOURCE
 
 
 def basis_of_map(emap: ExpressionMap) -> BlendshapeBasis:
@@ -33,15 +34,4 @@ def basis_from_provenance(provenance: dict, where: str | Path = "demo") -> Blend
 
 def bundled_basis() -> BlendshapeBasis:
     """The bundled demo's basis, read from its ``expression_map.npz`` (pickles refused)."""
-    from npga_core.files.places import bundled_path
-    from npga_core.files.untrusted import read_npz, real_floats
-
-    path = bundled_path("demo", "expression_map.npz")
-    z = read_npz(path, 16 * 2**20, keys=("M", "b", "names"), kinds={"names": "U"})
-    if not {"M", "b", "names"} <= set(z):
-        raise AvatarFileError(path, "needs arrays M, b and names")
-    try:
-        return BlendshapeBasis(tuple(str(n) for n in z["names"].reshape(-1)), real_floats(z["M"], path, "M"),
-                               real_floats(z["b"], path, "b"), SOURCE)
-    except ValueError as e:
-        raise AvatarFileError(path, str(e)) from None
+    return bundled_demo_basis()

@@ -372,9 +372,9 @@ def take_sequence(take: Take, basis: BlendshapeBasis, path: str | Path) -> tuple
 
 def default_basis() -> BlendshapeBasis:
     """The basis a take is read with when none is given: the bundled demo's."""
-    from npga_core.demo.basis import bundled_basis
+    from npga_core.files.basis_file import bundled_demo_basis
 
-    return bundled_basis()
+    return bundled_demo_basis()
 
 
 def read_take_sequence(path: str | Path, basis: BlendshapeBasis | None = None) -> ExpressionSequence:

@@ -39,3 +39,27 @@ def read_basis(path: str | Path) -> BlendshapeBasis:
                                real_floats(z["offset"], path, "basis offset"), source)
     except ValueError as e:
         raise AvatarFileError(path, str(e)) from None
+
+
+#: How the demo's map is described in its basis (`npga_core.demo.basis` derives the same from the build's seed).
+DEMO_SOURCE = "demo: z = M w + b of npga_core.demo.expression_map (exact)"
+
+
+def read_expression_map(path: str | Path) -> BlendshapeBasis:
+    """The basis of a demo build's ``expression_map.npz`` (arrays ``M`` (D, B), ``b`` (D,), ``names`` (B,))."""
+    path = Path(path)
+    z = read_npz(path, MAX_BASIS_BYTES, keys=("M", "b", "names"), kinds={"names": "U"})
+    if not {"M", "b", "names"} <= set(z):
+        raise AvatarFileError(path, "is no expression map (needs arrays M, b and names)")
+    try:
+        return BlendshapeBasis(tuple(str(n) for n in z["names"].reshape(-1)), real_floats(z["M"], path, "M"),
+                               real_floats(z["b"], path, "b"), DEMO_SOURCE)
+    except ValueError as e:
+        raise AvatarFileError(path, str(e)) from None
+
+
+def bundled_demo_basis() -> BlendshapeBasis:
+    """The bundled demo's basis (its ``expression_map.npz``)."""
+    from npga_core.files.places import bundled_path
+
+    return read_expression_map(bundled_path("demo", "expression_map.npz"))
