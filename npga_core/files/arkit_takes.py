@@ -35,8 +35,9 @@ from npga_core.files.sequences import ExpressionSequence
 from npga_core.files.untrusted import json_number, parse_json, read_bytes
 from npga_core.model.blendshapes import BlendshapeBasis
 
-#: Largest take file read.
-MAX_TAKE_BYTES = 256 * 2**20
+#: Largest take file read (a 52-shape take at 60 fps is ~0.6 kB a frame: an hour is ~130 MB; 64 MiB bounds the
+#: parsed form well under a gigabyte).
+MAX_TAKE_BYTES = 64 * 2**20
 #: Most frames and columns in a take.
 MAX_FRAMES = 2_000_000
 MAX_COLUMNS = 512
@@ -169,7 +170,7 @@ def read_livelink_csv(path: str | Path) -> Take:
     tc = low.index("timecode")
     value_cols = [i for i, h in enumerate(low) if h not in ("timecode", "blendshapecount")]
     codes: list[str] = []
-    values: list[list[float]] = []
+    values: list[np.ndarray] = []
     try:
         for r, row in enumerate(rows, start=2):
             if not row or all(not c.strip() for c in row):
@@ -180,14 +181,14 @@ def read_livelink_csv(path: str | Path) -> Take:
                 raise AvatarFileError(path, f"has more than {MAX_FRAMES} frames")
             codes.append(row[tc])
             try:
-                values.append([float(row[i]) for i in value_cols])
+                values.append(np.array([float(row[i]) for i in value_cols], np.float64))
             except ValueError:
                 raise AvatarFileError(path, f"line {r} has a value that is not a number") from None
     except csv.Error as e:
         raise AvatarFileError(path, f"not a CSV file ({e})") from None
     if not values:
         raise AvatarFileError(path, "has no frames")
-    table = np.array(values, np.float64).reshape(len(values), len(value_cols))
+    table = np.stack(values).reshape(len(values), len(value_cols))
     if not np.isfinite(table).all():
         r, c = np.argwhere(~np.isfinite(table))[0]
         raise AvatarFileError(path, f"column {header[value_cols[c]]} of frame {int(r)} is NaN/Inf")
@@ -197,9 +198,9 @@ def read_livelink_csv(path: str | Path) -> Take:
     shape_names = tuple(n for n in cols if n.lower() not in angle_keys)
     by_low = {n.lower(): n for n in cols}
     picked = {n: cols[by_low[n.lower()]] for n in ANGLE_NAMES if n.lower() in by_low}
-    w = np.stack([cols[n] for n in shape_names], axis=1) if shape_names else np.zeros((len(table), 0))
     if not shape_names:
         raise AvatarFileError(path, "has no blendshape columns")
+    w = np.stack([cols[n] for n in shape_names], axis=1)
     return Take(_checked_weights(w, path), shape_names, _checked_times(times, path), rate,
                 _angles(picked, ANGLE_NAMES[:3]), _angles(picked, ANGLE_NAMES[3:]), path.stem)
 

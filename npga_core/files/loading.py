@@ -25,6 +25,7 @@ from npga_core.files.trackers import tracker_of
 from npga_core.files.tracking import load_mononphm_folder
 from npga_core.files.untrusted import npz_names, open_regular, read_npy, real_floats, regular_file
 from npga_core.model.avatar import Avatar
+from npga_core.model.blendshapes import BlendshapeBasis
 
 #: Where the bundled demo avatar lives: package data (the repository's assets/demo), whatever the install.
 DEMO_DIR = bundled_path("demo")
@@ -56,7 +57,8 @@ def load_avatar(path: str | Path) -> Avatar:
     raise AvatarFileError(p, f"not an .npga checkpoint or a PLY file (starts with {head[:8]!r})")
 
 
-def load_sequence(path: str | Path, fps: float | None = None, basis=None) -> ExpressionSequence:
+def load_sequence(path: str | Path, fps: float | None = None,
+                  basis: BlendshapeBasis | None = None) -> ExpressionSequence:
     """Load `.npzseq`/`.npz` (codes under a common key), `.npy` (T, D), a MonoNPHM tracking folder, or a
     NeRSemble FLAME tracking / GaussianAvatars flame_param npz, with the head pose as that source defines it;
     ARKit takes (`.csv` Live Link Face, `.json`) through `basis` (a `BlendshapeBasis`; default the demo's)."""
