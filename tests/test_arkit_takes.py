@@ -132,6 +132,12 @@ def test_demo_basis_is_the_map_it_is_built_with():
     assert a.names == b.names == tuple(ICT_53)
     np.testing.assert_array_equal(a.matrix, b.matrix)
     np.testing.assert_array_equal(a.offset, b.offset)
+    # the avatar's named codes were encoded with the build's map (npga_core/demo/build.py: space.named)
+    from npga_core.demo.expressions import named_weights
+
+    named = load_avatar("demo").expression.named
+    for key, w in named_weights(ICT_53).items():
+        np.testing.assert_allclose(a.codes(w), named[key], atol=1e-5, err_msg=key)
 
 
 # ------------------------------------------------------------------------------------------ CSV

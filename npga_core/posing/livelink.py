@@ -24,6 +24,7 @@ The receiver binds to loopback unless told otherwise; a controller polls `latest
 
 from __future__ import annotations
 
+import contextlib
 import math
 import socket
 import struct
@@ -139,6 +140,8 @@ class LiveLinkReceiver:
         self._fps = 60.0
         self._record: list[tuple[float, np.ndarray, np.ndarray]] | None = None
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+        with contextlib.suppress(OSError):  # room for a burst while the thread is descheduled
+            self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
         self._sock.bind((host, port))
         self._sock.settimeout(0.05)
         self.address: tuple[str, int] = self._sock.getsockname()
