@@ -175,6 +175,15 @@ def test_dropped_frames_are_timed_by_their_timecodes(tmp_path):
     np.testing.assert_allclose(seq.codes[:4, 0], [0.0, 0.1, 0.2, 0.3], atol=1e-6)
 
 
+def test_sub_frame_jitter_keeps_one_row_per_frame(tmp_path):
+    p = tmp_path / "jitter.csv"
+    # real takes carry a varying sub-frame (".207", ".911"): still one frame each, nothing interpolated
+    write_csv(p, [("00:00:01:58.207", {"JawOpen": 0.58}), ("00:00:01:59.911", {"JawOpen": 0.59}),
+                  ("00:00:02:00.005", {"JawOpen": 0.6})])
+    seq = load_sequence(p, basis=BlendshapeBasis(("jawOpen",), np.eye(1), np.zeros(1)))
+    np.testing.assert_allclose(seq.codes[:, 0], [0.58, 0.59, 0.6], atol=1e-6)
+
+
 def test_rate_within_one_second_is_live_link_faces_60():
     from npga_core.files.arkit_takes import timecode_rate
 

@@ -109,8 +109,10 @@ def timecode_seconds(codes: list[str], path: str | Path) -> tuple[np.ndarray, fl
 def format_timecode(t: float, rate: float) -> str:
     """``HH:MM:SS:FF.sss`` of a time of day in seconds at `rate`."""
     whole = int(math.floor(t))
-    f = (t - whole) * rate
-    ff = int(math.floor(f + 1e-9))
+    f = round((t - whole) * rate, 6)  # k / rate read back as frame k, not k - 1 + 0.999999
+    if f >= rate:
+        whole, f = whole + 1, f - rate
+    ff = int(math.floor(f))
     frac = min(max(f - ff, 0.0), 0.999)
     h, rem = divmod(whole % 86400, 3600)
     return f"{h:02d}:{rem // 60:02d}:{rem % 60:02d}:{ff:02d}.{int(round(frac * 1000)):03d}"
@@ -338,11 +340,12 @@ def read_take(path: str | Path) -> Take:
 
 
 def resample(times: np.ndarray, values: np.ndarray, fps: float) -> np.ndarray:
-    """`values` (T, K) at `times` linearly resampled to a uniform grid at `fps` from the first time."""
+    """`values` (T, K) at `times` linearly resampled to a uniform grid at `fps` from the first time; a take with
+    exactly one row per frame of that grid (nothing dropped) is returned as it is."""
     n = int(math.floor((times[-1] - times[0]) * fps + 0.5)) + 1
     grid = times[0] + np.arange(n, dtype=np.float64) / fps
-    if n == len(times) and np.allclose(grid, times, rtol=0, atol=1e-6 / fps):
-        return np.asarray(values, np.float64)  # every frame on the grid: no interpolation
+    if n == len(times):  # one row per frame slot (sub-frame jitter only): the rows as they are
+        return np.asarray(values, np.float64)
     v = np.asarray(values, np.float64)
     return np.stack([np.interp(grid, times, v[:, k]) for k in range(v.shape[1])], axis=1).reshape(n, v.shape[1])
 
