@@ -117,6 +117,11 @@ READERS: dict[str, tuple[Callable[[Path, dict], dict[str, Path]], dict]] = {
     "preview cache .npz (pose worker)": (
         lambda d, w: hc.preview_caches(d, w["preview"]),
         _call("tests.hostile_corpus:load_preview_cache", lambda p, w: [str(p), w["key"], w["n"]])),
+    # #25 ARKit takes
+    "ARKit take .csv/.json (export --sequence)": (
+        lambda d, w: hc.arkit_takes(d),
+        _cli(lambda p, w: ["export", str(w["avatar"]), "--out", str(w["root"] / "o.ply"), "--sequence", str(p),
+                           "--frame", "0"])),
 }
 
 

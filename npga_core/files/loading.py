@@ -11,6 +11,7 @@ from __future__ import annotations
 from pathlib import Path
 
 from npga_core.errors import AvatarFileError
+from npga_core.files.arkit_takes import TAKE_SUFFIXES, read_take_sequence
 from npga_core.files.checkpoint import MAGIC, read_avatar
 from npga_core.files.gha import import_gha, is_gha_folder, is_gha_params, read_gha_params
 from npga_core.files.places import bundled_path
@@ -26,6 +27,7 @@ from npga_core.files.trackers import tracker_of
 from npga_core.files.tracking import load_mononphm_folder
 from npga_core.files.untrusted import npz_names, open_regular, read_npy, real_floats, regular_file
 from npga_core.model.avatar import Avatar
+from npga_core.model.blendshapes import BlendshapeBasis
 
 #: Where the bundled demo avatar lives: package data (the repository's assets/demo), whatever the install.
 DEMO_DIR = bundled_path("demo")
@@ -62,9 +64,11 @@ def load_avatar(path: str | Path) -> Avatar:
     raise AvatarFileError(p, f"not an .npga checkpoint or a PLY file (starts with {head[:8]!r})")
 
 
-def load_sequence(path: str | Path, fps: float | None = None) -> ExpressionSequence:
+def load_sequence(path: str | Path, fps: float | None = None,
+                  basis: BlendshapeBasis | None = None) -> ExpressionSequence:
     """Load `.npzseq`/`.npz` (codes under a common key), `.npy` (T, D), a MonoNPHM tracking folder, or a
-    NeRSemble FLAME tracking / GaussianAvatars flame_param npz, with the head pose as that source defines it."""
+    NeRSemble FLAME tracking / GaussianAvatars flame_param npz, with the head pose as that source defines it;
+    ARKit takes (`.csv` Live Link Face, `.json`) through `basis` (a `BlendshapeBasis`; default the demo's)."""
     path = Path(path)
     if path.is_dir():
         seq = read_gha_params(path) if is_gha_params(path) else load_mononphm_folder(path)
@@ -75,6 +79,8 @@ def load_sequence(path: str | Path, fps: float | None = None) -> ExpressionSeque
         elif codes.ndim == 3 and codes.shape[1] == 1:
             codes = codes[:, 0]
         seq = ExpressionSequence(codes, DEFAULT_FPS, path.stem)
+    elif path.suffix.lower() in TAKE_SUFFIXES:
+        seq = read_take_sequence(path, basis)
     else:
         regular_file(path, "a sequence file")
         seq = (tracker_of(npz_names(path)) or read_npz)(path)

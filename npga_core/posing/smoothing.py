@@ -70,3 +70,30 @@ def smooth(codes: np.ndarray, method: str, fps: float, alpha: float = 0.5, min_c
     if method == "one_euro":
         return one_euro(codes, fps, min_cutoff, beta)
     raise ValueError(f"unknown smoothing {method!r}")
+
+
+class OneEuro:
+    """The 1-euro filter of `one_euro` one sample at a time, for live streams with uneven intervals: `step`
+    takes a sample (K,) and the seconds since the last one; `reset` forgets the past."""
+
+    def __init__(self, min_cutoff: float = 1.0, beta: float = 0.5, d_cutoff: float = 1.0):
+        if min_cutoff <= 0 or d_cutoff <= 0 or beta < 0:
+            raise ValueError("OneEuro needs min_cutoff > 0, d_cutoff > 0, beta >= 0")
+        self.min_cutoff, self.beta, self.d_cutoff = min_cutoff, beta, d_cutoff
+        self.reset()
+
+    def reset(self) -> None:
+        self._y: np.ndarray | None = None
+        self._dx: np.ndarray | None = None
+
+    def step(self, x: np.ndarray, dt: float) -> np.ndarray:
+        x = np.asarray(x, np.float64)
+        if self._y is None or self._dx is None or not dt > 0:
+            self._y, self._dx = x.copy(), np.zeros_like(x)
+            return self._y.astype(np.float32)
+        raw_dx = (x - self._y) / dt
+        a_d = _alpha(self.d_cutoff, dt)
+        self._dx = a_d * raw_dx + (1.0 - a_d) * self._dx
+        a = _alpha(self.min_cutoff + self.beta * np.abs(self._dx), dt)
+        self._y = a * x + (1.0 - a) * self._y
+        return self._y.astype(np.float32)

@@ -18,6 +18,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "export": ("npga_view.cli.export", "export the avatar posed at one expression as a 3DGS .ply"),
     "import": ("npga_view.cli.importer", "convert another method's checkpoint (gha) into an .npga avatar"),
     "evaluate": ("npga_view.cli.evaluate", "render the avatar from a capture's views and score it (PSNR/SSIM/LPIPS)"),
+    "fit-blendshapes": ("npga_view.cli.fit_blendshapes", "fit a blendshape basis from an ARKit take and its codes"),
 }
 DEFAULT = "view"
 USAGE = "npga-view [AVATAR] [viewer options] | npga-view COMMAND [options]"

@@ -1,0 +1,392 @@
+"""ARKit face-capture takes: Live Link Face CSV and ARKit-style JSON, read into weights and turned into codes.
+
+- Live Link Face CSV (Epic's iPhone app): a header ``Timecode,BlendShapeCount,<52 shapes>,HeadYaw,...,
+  RightEyeRoll`` (PascalCase; the app's column order is not its UDP packet order, so columns are read by
+  name) and one row per frame; ``Timecode`` is ``HH:MM:SS:FF.sss`` (frame FF at the take's rate, .sss a
+  fraction of a frame). The rate is the smallest common rate above every FF seen (`timecode_rate`). Head
+  angles (radians) give the head pose; eye angles are kept; angle columns all zero mean "not recorded".
+- JSON: LAM Audio2Expression's ``{"names", "metadata": {"fps"}, "frames": [{"weights", "time"}]}``;
+  MediaPipe face-landmarker category lists (per frame ``[{"categoryName"|"category_name", "score"}]``,
+  optionally under ``categories``/``faceBlendshapes``, with ``timestampMs``/``timestamp_ms``), as a list or
+  under ``frames``; and a plain ``{name: [values], "fps": rate}``.
+
+Frames are timed by their timecodes: a take is resampled (linear) to a uniform grid at its rate from its
+first frame, so dropped frames do not speed the take up. Through a `BlendshapeBasis` it becomes an
+`ExpressionSequence` (names matched by `blendshape_names`; shapes the avatar lacks are reported once, as a
+warning naming the file).
+"""
+
+from __future__ import annotations
+
+import csv
+import io
+import math
+import re
+from dataclasses import dataclass
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+
+from npga_core.errors import AvatarFileError
+from npga_core.files.atomic import atomic_write
+from npga_core.files.blendshape_names import ANGLE_NAMES, match_names
+from npga_core.files.sequences import ExpressionSequence
+from npga_core.files.untrusted import json_number, parse_json, read_bytes
+from npga_core.model.blendshapes import BlendshapeBasis
+
+#: Largest take file read (a 52-shape take at 60 fps is ~0.6 kB a frame: an hour is ~130 MB; 64 MiB bounds the
+#: parsed form well under a gigabyte).
+MAX_TAKE_BYTES = 64 * 2**20
+#: Most frames and columns in a take.
+MAX_FRAMES = 2_000_000
+MAX_COLUMNS = 512
+#: Common frame rates a Live Link Face timecode's frame field may count at.
+RATES = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 100.0, 120.0, 240.0)
+JSON_FPS = 30.0
+TAKE_SUFFIXES = (".csv", ".json")
+HEAD_POSE = "ARKit head angles (radians): x_world = Ry(yaw) Rx(pitch) Rz(roll) x"
+_TIMECODE = re.compile(r"^(\d{1,2}):(\d{2}):(\d{2})[:;](\d{1,3})(?:\.(\d{1,9}))?$")
+
+
+@dataclass
+class Take:
+    """Weights (T, B) over `names`, per-frame times (T,) in seconds, the rate, and angles when recorded."""
+
+    weights: np.ndarray  # (T, B) float32
+    names: tuple[str, ...]
+    times: np.ndarray  # (T,) float64, strictly increasing
+    fps: float
+    head: np.ndarray | None = None  # (T, 3) yaw, pitch, roll in radians
+    eyes: np.ndarray | None = None  # (T, 6) left yaw, pitch, roll, right yaw, pitch, roll
+    name: str = ""
+
+
+# ------------------------------------------------------------------------------------------ timecodes
+
+
+def parse_timecode(text: str) -> tuple[int, float]:
+    """(whole seconds of the day, frame field + fraction) of ``HH:MM:SS:FF[.sss]``; ValueError if malformed."""
+    m = _TIMECODE.match(text.strip())
+    if m is None:
+        raise ValueError(f"timecode {text.strip()[:40]!r} is not HH:MM:SS:FF.sss")
+    h, mi, s, ff = (int(m.group(i)) for i in range(1, 5))
+    if h > 23 or mi > 59 or s > 59:
+        raise ValueError(f"timecode {text.strip()!r} is out of range")
+    frac = float("0." + m.group(5)) if m.group(5) else 0.0
+    return h * 3600 + mi * 60 + s, ff + frac
+
+
+def timecode_rate(secs: np.ndarray, frames: np.ndarray) -> float:
+    """The take's rate from its timecodes: the smallest common rate above every frame field seen when the take
+    crosses a second; within one second that is ambiguous and Live Link Face's 60 is taken when it fits."""
+    top = int(np.floor(np.max(frames))) if len(frames) else 0
+    if len(secs) and secs.max() == secs.min() and top < 60:
+        return 60.0
+    for r in RATES:
+        if top < r:
+            return r
+    raise ValueError(f"timecode frame field {top} exceeds every known rate")
+
+
+def timecode_seconds(codes: list[str], path: str | Path) -> tuple[np.ndarray, float]:
+    """Times (T,) in seconds from the first frame and the rate of Live Link Face timecodes."""
+    try:
+        parsed = [parse_timecode(c) for c in codes]
+    except ValueError as e:
+        raise AvatarFileError(path, str(e)) from None
+    secs = np.array([p[0] for p in parsed], np.float64)
+    frames = np.array([p[1] for p in parsed], np.float64)
+    try:
+        rate = timecode_rate(secs, frames)
+    except ValueError as e:
+        raise AvatarFileError(path, str(e)) from None
+    secs = np.where(secs < secs[0] - 43200, secs + 86400, secs)  # a take recorded across midnight
+    t = (secs - secs[0]) + (frames - frames[0]) / rate
+    return t, rate
+
+
+def format_timecode(t: float, rate: float) -> str:
+    """``HH:MM:SS:FF.sss`` of a time of day in seconds at `rate`."""
+    whole = int(math.floor(t))
+    f = round((t - whole) * rate, 6)  # k / rate read back as frame k, not k - 1 + 0.999999
+    if f >= rate:
+        whole, f = whole + 1, f - rate
+    ff = int(math.floor(f))
+    frac = min(max(f - ff, 0.0), 0.999)
+    h, rem = divmod(whole % 86400, 3600)
+    return f"{h:02d}:{rem // 60:02d}:{rem % 60:02d}:{ff:02d}.{int(round(frac * 1000)):03d}"
+
+
+# ------------------------------------------------------------------------------------------ checks
+
+
+def _checked_times(times: np.ndarray, path: str | Path) -> np.ndarray:
+    t = np.asarray(times, np.float64)
+    if not np.isfinite(t).all():
+        raise AvatarFileError(path, "frame times have NaN/Inf values")
+    bad = np.flatnonzero(np.diff(t) <= 0)
+    if len(bad):
+        raise AvatarFileError(path, f"frame times must increase (frame {int(bad[0]) + 1} is not after "
+                              f"frame {int(bad[0])})")
+    if len(t) and t[-1] - t[0] > 86400:
+        raise AvatarFileError(path, f"take lasts {t[-1] - t[0]:.0f} s, more than a day")
+    return t
+
+
+def _checked_weights(w: np.ndarray, path: str | Path) -> np.ndarray:
+    if not np.isfinite(w).all():
+        r, c = np.argwhere(~np.isfinite(w))[0]
+        raise AvatarFileError(path, f"weight {int(c)} of frame {int(r)} is NaN/Inf")
+    if np.abs(w).max(initial=0.0) > 1e3:
+        raise AvatarFileError(path, f"weights reach {float(np.abs(w).max()):.3g}; blendshape weights are ~[0, 1]")
+    return w.astype(np.float32)
+
+
+def _angles(cols: dict[str, np.ndarray], names: tuple[str, ...]) -> np.ndarray | None:
+    if not all(n in cols for n in names):
+        return None
+    a = np.stack([cols[n] for n in names], axis=1)
+    return None if not np.any(a) else a
+
+
+# ------------------------------------------------------------------------------------------ CSV
+
+
+def read_livelink_csv(path: str | Path) -> Take:
+    """A Live Link Face CSV take (columns by name)."""
+    path = Path(path)
+    text = _text(read_bytes(path, MAX_TAKE_BYTES, "a take file"), path)
+    rows = csv.reader(io.StringIO(text))
+    try:
+        header = [h.strip() for h in next(rows)]
+    except StopIteration:
+        raise AvatarFileError(path, "file is empty") from None
+    except csv.Error as e:
+        raise AvatarFileError(path, f"not a CSV file ({e})") from None
+    low = [h.lower() for h in header]
+    if "timecode" not in low:
+        raise AvatarFileError(path, f"has no Timecode column (columns: {', '.join(header[:6])}...)")
+    if len(header) > MAX_COLUMNS or len(set(low)) != len(low):
+        raise AvatarFileError(path, f"has {len(header)} columns with repeated or too many names")
+    tc = low.index("timecode")
+    value_cols = [i for i, h in enumerate(low) if h not in ("timecode", "blendshapecount")]
+    codes: list[str] = []
+    values: list[np.ndarray] = []
+    try:
+        for r, row in enumerate(rows, start=2):
+            if not row or all(not c.strip() for c in row):
+                continue
+            if len(row) != len(header):
+                raise AvatarFileError(path, f"line {r} has {len(row)} fields, the header {len(header)}")
+            if len(values) >= MAX_FRAMES:
+                raise AvatarFileError(path, f"has more than {MAX_FRAMES} frames")
+            codes.append(row[tc])
+            try:
+                values.append(np.array([float(row[i]) for i in value_cols], np.float64))
+            except ValueError:
+                raise AvatarFileError(path, f"line {r} has a value that is not a number") from None
+    except csv.Error as e:
+        raise AvatarFileError(path, f"not a CSV file ({e})") from None
+    if not values:
+        raise AvatarFileError(path, "has no frames")
+    table = np.stack(values).reshape(len(values), len(value_cols))
+    if not np.isfinite(table).all():
+        r, c = np.argwhere(~np.isfinite(table))[0]
+        raise AvatarFileError(path, f"column {header[value_cols[c]]} of frame {int(r)} is NaN/Inf")
+    times, rate = timecode_seconds(codes, path)
+    cols = {header[i]: table[:, k] for k, i in enumerate(value_cols)}
+    angle_keys = {n.lower() for n in ANGLE_NAMES}
+    shape_names = tuple(n for n in cols if n.lower() not in angle_keys)
+    by_low = {n.lower(): n for n in cols}
+    picked = {n: cols[by_low[n.lower()]] for n in ANGLE_NAMES if n.lower() in by_low}
+    if not shape_names:
+        raise AvatarFileError(path, "has no blendshape columns")
+    w = np.stack([cols[n] for n in shape_names], axis=1)
+    return Take(_checked_weights(w, path), shape_names, _checked_times(times, path), rate,
+                _angles(picked, ANGLE_NAMES[:3]), _angles(picked, ANGLE_NAMES[3:]), path.stem)
+
+
+def write_livelink_csv(path: str | Path, take: Take, start: float = 0.0) -> None:
+    """Write a take in Live Link Face's CSV layout (atomically); times are offset by `start` seconds of day."""
+    names = list(take.names)
+    angles = np.zeros((len(take.weights), 9))
+    if take.head is not None:
+        angles[:, :3] = take.head
+    if take.eyes is not None:
+        angles[:, 3:] = take.eyes
+    out = io.StringIO()
+    out.write(",".join(["Timecode", "BlendShapeCount", *names, *ANGLE_NAMES]) + "\n")
+    for t, w, a in zip(take.times, take.weights, angles, strict=True):
+        vals = ",".join(repr(float(v)) for v in (*w, *a))
+        out.write(f"{format_timecode(start + float(t), take.fps)},{len(names) + 9},{vals}\n")
+    data = out.getvalue().encode("utf-8")
+    atomic_write(Path(path), lambda fh: fh.write(data))
+
+
+def _text(data: bytes, path: Path) -> str:
+    try:
+        return data.decode("utf-8-sig")
+    except UnicodeDecodeError as e:
+        raise AvatarFileError(path, f"not UTF-8 text ({e.reason} at byte {e.start})") from None
+
+
+# ------------------------------------------------------------------------------------------ JSON
+
+
+def _number(v: Any, path: Path, what: str) -> float:
+    return json_number(v, path, what, -1e6, 1e6)
+
+
+def _category_frame(frame: Any, path: Path, i: int) -> tuple[dict[str, float], float | None]:
+    """({name: score}, time in seconds or None) of one MediaPipe frame."""
+    stamp = None
+    if isinstance(frame, dict):
+        for k, scale in (("timestampMs", 1e-3), ("timestamp_ms", 1e-3), ("time", 1.0), ("timestamp", 1.0)):
+            if k in frame:
+                stamp = _number(frame[k], path, f"frame {i} {k}") * scale
+                break
+        if "faceBlendshapes" in frame or "face_blendshapes" in frame:
+            faces = frame.get("faceBlendshapes", frame.get("face_blendshapes"))
+            if not isinstance(faces, list) or not faces:
+                raise AvatarFileError(path, f"frame {i} has no face")
+            frame = faces[0]
+        if isinstance(frame, dict):
+            frame = frame.get("categories")
+    if not isinstance(frame, list):
+        raise AvatarFileError(path, f"frame {i} is no list of blendshape categories")
+    out: dict[str, float] = {}
+    for c in frame:
+        if not isinstance(c, dict):
+            raise AvatarFileError(path, f"frame {i} has a category that is no object")
+        name = c.get("categoryName", c.get("category_name"))
+        if not isinstance(name, str) or not name or len(name) > 128:
+            raise AvatarFileError(path, f"frame {i} has a category without a name")
+        out[name] = _number(c.get("score"), path, f"frame {i} {name} score")
+    return out, stamp
+
+
+def _json_take(data: Any, path: Path) -> tuple[list[str], np.ndarray, np.ndarray | None, float]:
+    """(names, weights (T, B), times or None, fps) of any of the JSON layouts."""
+    fps = JSON_FPS
+    if isinstance(data, dict):
+        meta = data.get("metadata")
+        if isinstance(meta, dict) and "fps" in meta:
+            fps = json_number(meta["fps"], path, "metadata.fps", 1e-3, 1000)
+        elif "fps" in data:
+            fps = json_number(data["fps"], path, "fps", 1e-3, 1000)
+    if isinstance(data, dict) and "names" in data and "frames" in data:  # LAM Audio2Expression
+        names, frames = data["names"], data["frames"]
+        if not isinstance(names, list) or not all(isinstance(n, str) for n in names) or not isinstance(frames, list):
+            raise AvatarFileError(path, "names must be a list of strings and frames a list")
+        rows, times = [], []
+        for i, f in enumerate(frames):
+            w = f.get("weights") if isinstance(f, dict) else None
+            if not isinstance(w, list) or len(w) != len(names):
+                raise AvatarFileError(path, f"frame {i} must have {len(names)} weights")
+            rows.append([_number(v, path, f"frame {i} weight") for v in w])
+            if isinstance(f, dict) and "time" in f:
+                times.append(_number(f["time"], path, f"frame {i} time"))
+        t = np.array(times, np.float64) if rows and len(times) == len(rows) else None
+        return names, np.array(rows, np.float64).reshape(len(rows), len(names)), t, fps
+    frames = data.get("frames") if isinstance(data, dict) and isinstance(data.get("frames"), list) else data
+    if isinstance(frames, list):  # MediaPipe category lists
+        parsed = [_category_frame(f, path, i) for i, f in enumerate(frames)]
+        names = list(dict.fromkeys(n for d, _ in parsed for n in d))
+        if parsed and any(set(d) != set(names) for d, _ in parsed):
+            raise AvatarFileError(path, "frames name different blendshape categories")
+        w = np.array([[d[n] for n in names] for d, _ in parsed], np.float64).reshape(len(parsed), len(names))
+        stamps = [s for _, s in parsed]
+        t = np.array(stamps, np.float64) if parsed and all(s is not None for s in stamps) else None
+        return names, w, t, fps
+    if isinstance(data, dict):  # plain {name: [values]}
+        series = {k: v for k, v in data.items() if k not in ("fps", "metadata")}
+        if not series or not all(isinstance(v, list) for v in series.values()):
+            raise AvatarFileError(path, "is no ARKit take (expected names/frames, category lists or {name: [values]})")
+        lengths = {len(v) for v in series.values()}
+        if len(lengths) != 1:
+            raise AvatarFileError(path, f"blendshape series have different lengths {sorted(lengths)[:4]}")
+        names = list(series)
+        w = np.array([[_number(x, path, f"{n} value") for x in series[n]] for n in names], np.float64).T
+        return names, w.reshape(lengths.pop(), len(names)), None, fps
+    raise AvatarFileError(path, f"is no ARKit take (top level is {type(data).__name__})")
+
+
+def read_arkit_json(path: str | Path) -> Take:
+    """An ARKit JSON take in any of the layouts above."""
+    path = Path(path)
+    names, w, t, fps = _json_take(parse_json(read_bytes(path, MAX_TAKE_BYTES, "a take file"), path), path)
+    if len(w) == 0 or not names:
+        raise AvatarFileError(path, "has no frames")
+    if len(w) > MAX_FRAMES or len(names) > MAX_COLUMNS:
+        raise AvatarFileError(path, f"has {len(w)} frames of {len(names)} shapes, more than allowed")
+    if len(set(names)) != len(names):
+        raise AvatarFileError(path, "repeats a blendshape name")
+    times = np.arange(len(w), dtype=np.float64) / fps if t is None else t - t[0]
+    return Take(_checked_weights(w, path), tuple(names), _checked_times(times, path), fps, name=path.stem)
+
+
+def read_take(path: str | Path) -> Take:
+    """A take by its suffix: ``.csv`` Live Link Face, ``.json`` ARKit JSON."""
+    path = Path(path)
+    if path.suffix.lower() == ".csv":
+        return read_livelink_csv(path)
+    if path.suffix.lower() == ".json":
+        return read_arkit_json(path)
+    raise AvatarFileError(path, f"is no ARKit take ({', '.join(TAKE_SUFFIXES)})")
+
+
+# ------------------------------------------------------------------------------------------ to a sequence
+
+
+def resample(times: np.ndarray, values: np.ndarray, fps: float) -> np.ndarray:
+    """`values` (T, K) at `times` linearly resampled to a uniform grid at `fps` from the first time; a take with
+    exactly one row per frame of that grid (nothing dropped) is returned as it is."""
+    n = int(math.floor((times[-1] - times[0]) * fps + 0.5)) + 1
+    grid = times[0] + np.arange(n, dtype=np.float64) / fps
+    if n == len(times):  # one row per frame slot (sub-frame jitter only): the rows as they are
+        return np.asarray(values, np.float64)
+    v = np.asarray(values, np.float64)
+    return np.stack([np.interp(grid, times, v[:, k]) for k in range(v.shape[1])], axis=1).reshape(n, v.shape[1])
+
+
+def head_pose(angles: np.ndarray) -> np.ndarray:
+    """Canonical -> world 4x4 (T, 4, 4) of (yaw, pitch, roll) radians: x_world = Ry(yaw) Rx(pitch) Rz(roll) x."""
+    from scipy.spatial.transform import Rotation
+
+    a = np.asarray(angles, np.float64)
+    pose = np.tile(np.eye(4), (len(a), 1, 1))
+    pose[:, :3, :3] = Rotation.from_euler("YXZ", a[:, [0, 1, 2]]).as_matrix()
+    return pose
+
+
+def take_sequence(take: Take, basis: BlendshapeBasis, path: str | Path) -> tuple[ExpressionSequence, str]:
+    """The take as codes through `basis` (resampled by its times), and the one-line report of unmatched names."""
+    try:
+        match = match_names(take.names, basis.names)
+    except ValueError as e:
+        raise AvatarFileError(path, str(e)) from None
+    w = resample(take.times, match.apply(take.weights), take.fps)
+    seq = ExpressionSequence(basis.codes(w), take.fps, take.name or Path(path).stem)
+    if take.head is not None:
+        seq.pose = head_pose(resample(take.times, take.head, take.fps))
+        seq.pose_source = HEAD_POSE
+    return seq, match.report()
+
+
+def default_basis() -> BlendshapeBasis:
+    """The basis a take is read with when none is given: the bundled demo's."""
+    from npga_core.files.basis_file import bundled_demo_basis
+
+    return bundled_demo_basis()
+
+
+def read_take_sequence(path: str | Path, basis: BlendshapeBasis | None = None) -> ExpressionSequence:
+    """`read_take` then `take_sequence` (the demo's basis when none is given); unmatched names are reported
+    once as a warning."""
+    import warnings
+
+    seq, report = take_sequence(read_take(path), basis or default_basis(), path)
+    if report:
+        warnings.warn(f"{path}: {report}", stacklevel=2)
+    return seq
