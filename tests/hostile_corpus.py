@@ -97,6 +97,7 @@ def npy_codes(folder: Path, dim: int) -> dict[str, Path]:
         "bool": _npy(np.ones((4, dim), bool)),
         "empty file": b"",
         "garbage": os.urandom(256),
+        "codes of 3e38 (finite, overflow in the dynamics)": _npy(np.full((4, dim), 3e38, np.float32)),
     }
     return {**_write_all(folder, ".npy", cases), **_special(folder, "codes.npy")}
 
@@ -118,6 +119,26 @@ def _zip_bomb(dim: int) -> bytes:
         for _ in range(64):  # 64 MiB of zeros, ~64 KiB compressed; the header claims far more
             m.write(zero)
     return buf.getvalue()
+
+
+def _broken_stream(members: dict[str, bytes], method: int) -> bytes:
+    """A zip whose compressed member data (deflate or LZMA) is corrupted after its first bytes."""
+    buf = io.BytesIO()
+    with zipfile.ZipFile(buf, "w", method) as zf:
+        for name, data in members.items():
+            zf.writestr(name, data)
+    raw = bytearray(buf.getvalue())
+    info = zipfile.ZipFile(io.BytesIO(bytes(raw))).infolist()[0]
+    start = info.header_offset + 30 + len(info.filename) + len(info.extra)
+    for i in range(start + 8, start + min(info.compress_size, 400)):
+        raw[i] ^= 0x5A
+    return bytes(raw)
+
+
+def _pose(t: int, translation: float) -> np.ndarray:
+    pose = np.broadcast_to(np.eye(4), (t, 4, 4)).copy()
+    pose[:, :3, 3] = translation
+    return pose
 
 
 def npz_sequences(folder: Path, dim: int) -> dict[str, Path]:
@@ -143,6 +164,15 @@ def npz_sequences(folder: Path, dim: int) -> dict[str, Path]:
         "zip cut in half": good[: len(good) // 2],
         "not a zip": b"PK\x05\x06" + os.urandom(100),
         "empty file": b"",
+        "codes of 3e38": _zip({"codes.npy": _npy(np.full((4, dim), 3e38, np.float32))}),
+        "fps 1e-300": _zip({"codes.npy": codes, "fps.npy": _npy(np.float64(1e-300))}),
+        "pose translations 1e308": _zip({"codes.npy": codes, "pose.npy": _npy(_pose(4, 1e308))}),
+        "old-style translation 1e308": _zip({"codes.npy": codes, "translation.npy": _npy(np.full((4, 3), 1e308))}),
+        "old-style scale 1e-300": _zip({"codes.npy": codes, "scale.npy": _npy(np.full(4, 1e-300))}),
+        "broken deflate stream": _broken_stream({"codes.npy": _npy(np.arange(4 * dim, dtype=np.float32)
+                                                                   .reshape(4, dim))}, zipfile.ZIP_DEFLATED),
+        "broken LZMA stream": _broken_stream({"codes.npy": _npy(np.arange(4 * dim, dtype=np.float32)
+                                                                .reshape(4, dim))}, zipfile.ZIP_LZMA),
     }
     return {**_write_all(folder, ".npz", cases), **_special(folder, "seq.npz")}
 
@@ -164,6 +194,9 @@ def mononphm_folders(folder: Path, dim: int) -> dict[str, Path]:
         "z_exp is a FIFO": ["fifo", "fifo"],
         "z_exp is a directory": ["dir", "dir"],
         "no frames at all": [],
+        "z_exp of 3e38": [ok, _npy(np.full((1, dim), 3e38, np.float32))],
+        "only a frame folder named with a superscript digit": [("\u00b2", ok)],
+        "only a frame folder named with Arabic-Indic digits": [("\u0660\u0660\u0661", ok)],
     }
     out = {}
     for i, (name, files) in enumerate(frames.items()):
@@ -171,6 +204,8 @@ def mononphm_folders(folder: Path, dim: int) -> dict[str, Path]:
         root.mkdir()
         for t, content in enumerate(files):
             d = root / f"{t:05d}"
+            if isinstance(content, tuple):  # (folder name, content)
+                d, content = root / content[0], content[1]
             d.mkdir()
             target = d / "z_exp.npy"
             if content == "fifo":
@@ -213,6 +248,14 @@ def npga_files(folder: Path, good: Path) -> dict[str, Path]:
     def wrong_type(h):
         h["gaussians"]["count"] = "600"
 
+    def with_values(tensor: str, value: float) -> bytes:
+        """The good file with every value of `tensor` replaced (the data section, offsets from the header)."""
+        spec = header["tensors"][tensor]
+        body = bytearray(data)
+        n = spec["nbytes"] // 4
+        body[spec["offset"]:spec["offset"] + 4 * n] = np.full(n, value, np.float32).tobytes()
+        return raw[:16 + hlen] + bytes(body)
+
     nested = b'{"format": "npga", "x": ' + b"[" * 50000 + b"]" * 50000 + b"}"
     cases = {
         "empty file": b"",
@@ -229,6 +272,8 @@ def npga_files(folder: Path, good: Path) -> dict[str, Path]:
         "huge number in header": with_header(text=json.dumps(header).replace('"format_version": 1',
                                                                              '"format_version": 1e999').encode()),
         "garbage": os.urandom(4096),
+        "expression std 1e-45": with_values("expression.std", 1e-45),
+        "expression mean 3e38": with_values("expression.mean", 3e38),
     }
     return {**_write_all(folder, ".npga", cases), **_special(folder, "avatar.npga")}
 
@@ -255,8 +300,67 @@ def ply_files(folder: Path, good: Path) -> dict[str, Path]:
         "non-ASCII header": head.replace("ply\n", "ply\ncomment \xff\xfe\n").encode("latin-1") + raw[end:],
         "empty file": b"",
         "only the word ply": b"ply",
+        "log-scales of 100": head.encode() + _ply_column(body, head, "scale_0", 100.0),
+        "quaternions of 1e30": head.encode() + _ply_column(body, head, "rot_0", 1e30),
+        "positions of 1e30": head.encode() + _ply_column(body, head, "x", 1e30),
+        "bare property line": head.replace("property float x\n", "property\nproperty float x\n").encode()
+        + raw[end:],
     }
-    return {**_write_all(folder, ".ply", cases), **_special(folder, "avatar.ply")}
+    out = _write_all(folder, ".ply", cases)
+    sparse = folder / "sparse.ply"  # claims 5e8 vertices; the file really is that long (sparse, no disk used)
+    big = head.replace(f"element vertex {n}", "element vertex 500000000")
+    with open(sparse, "wb") as fh:
+        fh.write(big.encode())
+        fh.truncate(len(big) + 500_000_000 * 4 * len(body) // max(n, 1))
+    out["sparse file claiming 5e8 vertices"] = sparse
+    return {**out, **_special(folder, "avatar.ply")}
+
+
+def _ply_column(body: np.ndarray, head: str, prop: str, value: float) -> bytes:
+    """The binary vertex data with property `prop` set to `value` in every vertex."""
+    names = [line.split()[-1] for line in head.splitlines() if line.startswith("property ")]
+    rows = body.reshape(-1, len(names)).copy()
+    rows[:, names.index(prop)] = value
+    return rows.tobytes()
+
+
+def degenerate_avatars(folder: Path, good_ply: Path, good_npga: Path) -> dict[str, Path]:
+    """Valid but degenerate avatars, which must open, render an empty image and say so (exit 0, no traceback,
+    no warning): 0 Gaussians, all transparent, all at one point, names with lone surrogates."""
+    from npga_core.files.checkpoint import save_avatar
+    from npga_core.model.synthetic import make_synthetic_avatar
+
+    raw = good_ply.read_bytes()
+    end = raw.index(b"end_header\n") + len(b"end_header\n")
+    head = raw[:end].decode()
+    n = int(head.split("element vertex ")[1].split()[0])
+    body = np.frombuffer(raw[end:], np.float32).copy()
+    cases = {
+        "ASCII PLY of 0 vertices": head.replace(f"element vertex {n}", "element vertex 0")
+        .replace("binary_little_endian", "ascii").encode(),
+        "binary PLY of 0 vertices": head.replace(f"element vertex {n}", "element vertex 0").encode(),
+        "all transparent": head.encode() + _ply_column(body, head, "opacity", -80.0),
+        "all at one point": head.encode() + _ply_column(_ply_column_array(body, head, "x", 0.0), head, "y", 0.0),
+    }
+    out = _write_all(folder, ".ply", cases)
+    zero = folder / "zero.npga"
+    save_avatar(make_synthetic_avatar(0, seed=3), zero)
+    out["avatar of 0 Gaussians"] = zero
+    hraw = good_npga.read_bytes()
+    hlen = int.from_bytes(hraw[8:16], "little")
+    header = json.loads(hraw[16:16 + hlen])
+    header["gaussians"]["part_names"] = ["face\ud800", "back\nhead", "neck\udcff"]
+    header["provenance"]["source"] = "x\udc80\n\x1b[31m"
+    t = json.dumps(header).encode()  # ASCII JSON: the surrogates as \u escapes, as a hostile writer may put them
+    t += b" " * ((-(16 + len(t))) % 64)
+    names = folder / "names.npga"
+    names.write_bytes(hraw[:8] + len(t).to_bytes(8, "little") + t + hraw[16 + hlen:])
+    out["lone surrogates and newlines in part names and provenance"] = names
+    return out
+
+
+def _ply_column_array(body: np.ndarray, head: str, prop: str, value: float) -> np.ndarray:
+    return np.frombuffer(_ply_column(body, head, prop, value), np.float32)
 
 
 # -- JSON ------------------------------------------------------------------------------------------------------
@@ -294,7 +398,13 @@ def camera_json(folder: Path) -> dict[str, Path]:
              "fx 1e308 times 10": cam(fx=1e308).replace(b"1e+308", b"1e309"),
              "3x3 world_to_camera": cam(world_to_camera=np.eye(3).tolist()),
              "world_to_camera strings": cam(world_to_camera=[["a"] * 4] * 4),
-             "a list": b"[1, 2, 3]"}
+             "a list": b"[1, 2, 3]",
+             "width true": cam(width=True),
+             "fx 1e300": cam(fx=1e300, fy=1e300),
+             "cx 1e300": cam(cx=1e300),
+             "singular world_to_camera": cam(world_to_camera=np.diag([0.0, 0.0, 0.0, 1.0]).tolist()),
+             "skewed world_to_camera": cam(world_to_camera=[[1, 5, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]),
+             "translation 1e300": cam(world_to_camera=[[1, 0, 0, 1e300], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])}
     return {**_write_all(folder, ".json", cases), **_special(folder, "camera.json")}
 
 
@@ -317,7 +427,9 @@ def rig_json(folder: Path) -> dict[str, Path]:
              "world_2_cam 3x4": rig(world_2_cam={"a": np.eye(4)[:3].tolist()}),
              "5000 cameras": rig(world_2_cam={str(i): np.eye(4).tolist() for i in range(5000)}),
              "no cameras": rig(world_2_cam={}),
-             "missing intrinsics": json.dumps({"world_2_cam": good["world_2_cam"]}).encode()}
+             "missing intrinsics": json.dumps({"world_2_cam": good["world_2_cam"]}).encode(),
+             "focal length 1e300": rig(intrinsics=[[1e300, 0.0, 275.0], [0.0, 1e300, 401.0], [0.0, 0.0, 1.0]]),
+             "singular world_2_cam": rig(world_2_cam={"a": np.diag([0.0, 0.0, 0.0, 1.0]).tolist()})}
     return {**_write_all(folder, ".json", cases), **_special(folder, "camera_params.json")}
 
 
@@ -343,7 +455,14 @@ def keyframe_json(folder: Path, dim: int) -> dict[str, Path]:
              "camera key width 0": tl(camera=[{"time": 0.0, "camera": {**cam, "width": 0}}]),
              "version 2": tl(npga_keyframes=2),
              "code_dim a string": tl(code_dim="16"),
-             "keys not a list": tl(expression={"a": 1})}
+             "keys not a list": tl(expression={"a": 1}),
+             "key time 1e9": tl([{"time": 0.0, "code": [0.0] * dim}, {"time": 1e9, "code": [0.0] * dim}]),
+             "key time 1e308": tl([{"time": 0.0, "code": [0.0] * dim}, {"time": 1e308, "code": [0.0] * dim}]),
+             "hold 1e308": tl([{"time": 0.0, "code": [0.0] * dim, "hold": 1e308}]),
+             "code of 3e38": tl([{"time": 0.0, "code": [3e38] * dim}]),
+             "camera key fx 1e300": tl(camera=[{"time": 0.0, "camera": {**cam, "fx": 1e300, "fy": 1e300}}]),
+             "camera key singular": tl(camera=[{"time": 0.0, "camera": {**cam, "world_to_camera":
+                                                                         np.zeros((4, 4)).tolist()}}])}
     return {**_write_all(folder, ".json", cases), **_special(folder, "keyframes.json")}
 
 
@@ -424,6 +543,7 @@ def bake_caches(folder: Path, good: Path) -> dict[str, Path]:
         return raw[:8] + len(t).to_bytes(8, "little") + t + rest
 
     s = header["shape"]
+    table = s[0] * s[2] * 4  # bytes of the lo table, then of the step table
     cases = {
         "shape claims 10^12 rows": with_header(shape=[s[0], 10**12, s[2]]),
         "frames 10^12": with_header(frames=10**12),
@@ -436,9 +556,18 @@ def bake_caches(folder: Path, good: Path) -> dict[str, Path]:
         "truncated": raw[: len(raw) // 2],
         "NaN offsets and steps": raw[:16 + hlen] + np.full(len(rest) // 4, np.nan, np.float32).tobytes(),
         "empty file": b"",
+        "steps of 3e38": raw[:16 + hlen] + _floats_set(rest, table, 2 * table, 3e38),
+        "offsets (lo) of 3e38": raw[:16 + hlen] + _floats_set(rest, 0, table, -3e38),
     }
     return {**_write_all(folder, ".npgabake", cases), **{k: v for k, v in _special(folder, "x.npgabake").items()
                                                         if k != "missing"}}
+
+
+def _floats_set(data: bytes, start: int, stop: int, value: float) -> bytes:
+    """`data` with the float32 values in bytes [start, stop) set to `value`."""
+    out = bytearray(data)
+    out[start:stop] = np.full((stop - start) // 4, value, np.float32).tobytes()
+    return bytes(out)
 
 
 def preview_caches(folder: Path, good: Path) -> dict[str, Path]:
@@ -466,6 +595,10 @@ def preview_caches(folder: Path, good: Path) -> dict[str, Path]:
         "meta nested JSON": with_members(meta=_npy(np.frombuffer(b"[" * 5000 + b"]" * 5000, np.uint8))),
         "zip cut in half": (zb := _zip(members))[: len(zb) // 2],
         "not a zip": os.urandom(300),
+        "weights of 3e38": with_members(weights=_npy(np.full(neighbours.shape, 3e38, np.float32))),
+        "broken deflate stream": _broken_stream({**members, "weights.npy": _npy(
+            np.linspace(0, 1, neighbours.size, dtype=np.float32).reshape(neighbours.shape))},
+            zipfile.ZIP_DEFLATED),
     }
     return {**_write_all(folder, ".npz", cases), **{k: v for k, v in _special(folder, "preview.npz").items()
                                                    if k != "missing"}}

@@ -197,7 +197,7 @@ def write_ply(path: str | Path, means: np.ndarray, quats: np.ndarray, log_scales
     data[:, 6:9] = sh[:, 0, :]
     o = 9
     if k > 1:
-        data[:, o : o + 3 * (k - 1)] = np.asarray(sh[:, 1:, :]).transpose(0, 2, 1).reshape(n, -1)
+        data[:, o : o + 3 * (k - 1)] = np.asarray(sh[:, 1:, :]).transpose(0, 2, 1).reshape(n, 3 * (k - 1))
         o += 3 * (k - 1)
     data[:, o] = opacity_logits
     data[:, o + 1 : o + 4] = log_scales

@@ -11,6 +11,7 @@ sorted by number). Stage 1 stores the frame's own code, shape (1, D) or (D,); st
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -20,11 +21,14 @@ from npga_core.files.pose import MONONPHM, mononphm_pose
 from npga_core.files.sequences import DEFAULT_FPS, MAX_SEQUENCE_BYTES, ExpressionSequence
 from npga_core.files.untrusted import read_npy, real_floats
 
+#: A frame folder's name: ASCII digits only (str.isdigit also takes other scripts' digits and superscripts).
+_FRAME_NAME = re.compile(r"[0-9]{1,12}")
+
 
 def _frame_dirs(root: Path) -> list[tuple[int, Path]]:
     frames = []
     for p in root.iterdir():
-        if p.is_dir() and p.name.isdigit() and (p / "z_exp.npy").is_file():
+        if _FRAME_NAME.fullmatch(p.name) and p.is_dir() and (p / "z_exp.npy").is_file():
             frames.append((int(p.name), p))
     return sorted(frames)
 
@@ -40,7 +44,7 @@ def _row(path: Path, t_index: int, n_frames: int, tail: tuple[int, ...]) -> np.n
     a = _load(path)
     k = len(tail) or 1
     if a.ndim == k + 1 and a.shape[0] == n_frames and n_frames > 1 and (not tail or a.shape[1:] == tail):
-        entry = a[t_index]
+        entry = a[t_index].copy()  # a copy: a view would keep the whole (T, ...) table alive per frame
     elif a.ndim <= k + 1 and (a.ndim <= k or a.shape[0] == 1):
         entry = a.reshape(a.shape[1:] if a.ndim == k + 1 else a.shape)
     else:
