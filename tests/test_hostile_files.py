@@ -122,9 +122,6 @@ READERS: dict[str, tuple[Callable[[Path, dict], dict[str, Path]], dict]] = {
     "degenerate avatars (export)": (
         lambda d, w: hc.degenerate_avatars(d, w["ply"], w["avatar"]),
         _accepted(lambda p, w: ["export", str(p), "--out", str(w["root"] / f"{p.stem}.ply")])),
-    "degenerate avatars (render)": (  # PLY only: a forked child posing a .npga and drawing with GL crashes
-        lambda d, w: {k: v for k, v in hc.degenerate_avatars(d, w["ply"], w["avatar"]).items() if v.suffix == ".ply"},
-        _accepted(lambda p, w: ["render", str(p), "--out", str(w["root"] / f"{p.stem}.png")])),
     "bake cache .npgabake (pose worker)": (
         lambda d, w: hc.bake_caches(d, w["bake"]),
         _call("tests.hostile_corpus:open_bake_cache", lambda p, w: [str(p), w["key"]])),
