@@ -28,7 +28,7 @@ def degenerate(tmp_path_factory) -> dict[str, Path]:
     save_ply(make_synthetic_avatar(50, with_f=False, with_g=False).cloud, good_ply)
     cases = root / "cases"
     cases.mkdir()
-    return hc.degenerate_avatars(cases, good_ply, good_npga)
+    return hc.degenerate_avatars(cases, good_ply, good_npga, guards=True)
 
 
 @pytest.mark.parametrize("case", ["avatar of 0 Gaussians", "ASCII PLY of 0 vertices", "all at one point"])
