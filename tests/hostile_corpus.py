@@ -482,7 +482,11 @@ def session_json(folder: Path) -> dict[str, Path]:
              "sliders strings": ses(sliders=["nan"]),
              "timeline speed 'inf'": ses(timeline={"speed": "inf"}),
              "background 1e308": ses(background=[1e308, 0, 0]),
-             "rig_index 10^20": ses(rig_index=10**20)}
+             "rig_index 10^20": ses(rig_index=10**20),
+             "unknown smoothing": ses(timeline={"smoothing": "cubic"}),
+             "one-euro cutoff 0": ses(timeline={"smoothing": "one_euro", "euro_min_cutoff": 0.0}),
+             "exponential alpha 0": ses(timeline={"smoothing": "exponential", "smooth_alpha": 0.0}),
+             "bake budget 0": ses(timeline={"bake_budget_mb": 0.0, "baked": True})}
     return {**_write_all(folder, ".json", cases), **_special(folder, "session.json")}
 
 
