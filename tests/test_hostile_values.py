@@ -45,3 +45,33 @@ def test_render_degenerate_avatar(case, degenerate, tmp_path):
     if "0" in case:
         assert "no Gaussians" in r.stdout
         assert np.abs(image).max() == 0.0 or np.ptp(image) == 0.0  # only the background
+
+
+def test_video_at_a_path_with_undecodable_bytes(tmp_path):
+    """A guard (today's PyAV took it too): the temp file is ASCII, the video lands at its undecodable name."""
+    from npga_view.video import VideoWriter
+
+    out = tmp_path / os.fsdecode(b"clip-\xff\xfe.mp4")  # a lone surrogate in Python's view of the name
+    with VideoWriter(out, 32, 32, fps=10) as w:
+        for _ in range(3):
+            w.write(np.zeros((32, 32, 3), np.uint8))
+    assert out.is_file() and out.stat().st_size > 0
+
+
+def test_video_rate_that_rounds_to_zero_is_one_line():
+    from npga_view.video import VideoWriter
+
+    with pytest.raises(ValueError, match="frame rate"):
+        VideoWriter(Path("x.mp4"), 32, 32, fps=1e-300)
+
+
+def test_errors_escape_what_they_name():
+    """AvatarFileError escapes lone surrogates, undecodable bytes and newlines in the path and the problem, so
+    the message can be printed, drawn by imgui and encoded as UTF-8."""
+    from npga_core.errors import AvatarFileError, shown
+
+    err = AvatarFileError(os.fsdecode(b"a\xff\nb.npga"), "part \ud800 name\nis odd")
+    text = str(err)
+    text.encode("utf-8")  # no lone surrogate left
+    assert "\n" not in text and "\\udcff" in text and "\\n" in text and "\\ud800" in text
+    assert shown("plain name ✓.npga") == "plain name ✓.npga"
