@@ -168,6 +168,14 @@ def npz_sequences(folder: Path, dim: int) -> dict[str, Path]:
         "fps 1e-300": _zip({"codes.npy": codes, "fps.npy": _npy(np.float64(1e-300))}),
         "pose translations 1e308": _zip({"codes.npy": codes, "pose.npy": _npy(_pose(4, 1e308))}),
         "old-style translation 1e308": _zip({"codes.npy": codes, "translation.npy": _npy(np.full((4, 3), 1e308))}),
+        "NeRSemble tracking, translations 1e308": _zip({
+            "expression.npy": codes, "rotation.npy": _npy(np.zeros((4, 3))), "translation.npy":
+            _npy(np.full((4, 3), 1e308)), "scale.npy": _npy(np.ones((1, 1))), "jaw.npy": _npy(np.zeros((4, 3))),
+            "neck.npy": _npy(np.zeros((4, 3))), "eyes.npy": _npy(np.zeros((4, 6)))}),
+        "GaussianAvatars flame_param, translations 1e308": _zip({
+            "expr.npy": codes, "rotation.npy": _npy(np.zeros((4, 3))), "translation.npy":
+            _npy(np.full((4, 3), 1e308)), "neck_pose.npy": _npy(np.zeros((4, 3))),
+            "jaw_pose.npy": _npy(np.zeros((4, 3))), "eyes_pose.npy": _npy(np.zeros((4, 6)))}),
         "broken deflate stream": _broken_stream({"codes.npy": _npy(np.arange(4 * dim, dtype=np.float32)
                                                                    .reshape(4, dim))}, zipfile.ZIP_DEFLATED),
     }

@@ -75,3 +75,16 @@ def test_errors_escape_what_they_name():
     text.encode("utf-8")  # no lone surrogate left
     assert "\n" not in text and "\\udcff" in text and "\\n" in text and "\\ud800" in text
     assert shown("plain name ✓.npga") == "plain name ✓.npga"
+
+
+def test_outputs_are_checked_finite_before_they_are_written():
+    """The last line of defence of export/render: a NaN/Inf in a computed output is one line naming the input
+    and the field."""
+    from npga_core.errors import AvatarFileError
+    from npga_core.files.untrusted import bounded_floats, finite_output
+
+    finite_output({"means": np.zeros((3, 3), np.float32)}, "in.npy", "posed")
+    with pytest.raises(AvatarFileError, match=r"in\.npy: posed: scales has 1 NaN/Inf"):
+        finite_output({"means": np.zeros((3, 3)), "scales": np.array([1.0, np.inf])}, "in.npy", "posed")
+    with pytest.raises(AvatarFileError, match=r"codes reach 3e\+38"):
+        bounded_floats(np.full(4, 3e38, np.float32), "c.npy", "codes", 1e4)
