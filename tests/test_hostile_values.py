@@ -88,3 +88,24 @@ def test_outputs_are_checked_finite_before_they_are_written():
         finite_output({"means": np.zeros((3, 3)), "scales": np.array([1.0, np.inf])}, "in.npy", "posed")
     with pytest.raises(AvatarFileError, match=r"codes reach 3e\+38"):
         bounded_floats(np.full(4, 3e38, np.float32), "c.npy", "codes", 1e4)
+
+
+def test_stage2_rows_do_not_pin_their_tables(tmp_path):
+    """A stage-2 MonoNPHM frame file holds the whole (T, D) table: each frame keeps only its own row, converted
+    alone (no float64 copy of the table, no view keeping it alive)."""
+    from npga_core.files.tracking import _row, load_mononphm_folder
+
+    table = np.arange(3 * 5, dtype=np.float32).reshape(3, 5)
+    for t in range(3):
+        (tmp_path / f"{t:05d}").mkdir()
+        np.save(tmp_path / f"{t:05d}" / "z_exp.npy", table)
+    row = _row(tmp_path / "00001" / "z_exp.npy", 1, 3, ())
+    assert row.base is None or row.base.nbytes == row.nbytes  # its own memory, not a view of the table
+    assert row.dtype == np.float64 and row.tolist() == table[1].tolist()
+    seq = load_mononphm_folder(tmp_path)
+    assert np.array_equal(seq.codes, table)
+    budget = [table.nbytes * 2]  # room for two of the three tables
+    for t in range(2):
+        _row(tmp_path / f"{t:05d}" / "z_exp.npy", t, 3, (), budget)
+    with pytest.raises(Exception, match="z_exp.npy"):
+        _row(tmp_path / "00002" / "z_exp.npy", 2, 3, (), budget)
