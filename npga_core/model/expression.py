@@ -42,7 +42,7 @@ class ExpressionSpace:
         mean = codes.mean(axis=0)
         _, s, vt = np.linalg.svd(codes - mean, full_matrices=False)
         std = s / np.sqrt(codes.shape[0] - 1)
-        keep = std > min_std * max(1.0, float(std[0]) if std.size else 1.0)
+        keep = (std > min_std * max(1.0, float(std[0]) if std.size else 1.0)) & (std >= STD_RANGE[0])
         if n_components is not None:
             keep &= np.arange(std.size) < n_components
         vt, std = vt[keep], std[keep]
