@@ -19,6 +19,7 @@ from npga_core.files.atomic import atomic_write
 from npga_core.files.places import user_config_dir
 from npga_core.files.untrusted import read_json
 from npga_core.inspection.inspector import InspectSettings
+from npga_core.posing.smoothing import check_playback
 
 MAX_SLIDERS = 50
 RENDER_MODES = ("rgb", "depth", "alpha")
@@ -163,6 +164,7 @@ class ViewerState:
                 elif not isinstance(v, str) or len(v) > 64:
                     raise ValueError(f"timeline.{k} must be a short string")
                 setattr(self.timeline, k, v)
+        check_playback(self.timeline)  # settings smooth() or the bake would refuse later, in the frame loop
         self.rig_path = paths["rig"]
         self.rig_index = int(_session_number(d.get("rig_index", -1), "rig_index", -1, 4096))
 

@@ -20,6 +20,7 @@ from pathlib import Path
 import numpy as np
 
 from npga_core.files.atomic import move_into_place
+from npga_core.files.untrusted import FPS_RANGE, shown
 
 CODEC = "libx264"
 PIX_FMT = "yuv420p"
@@ -41,8 +42,9 @@ def even_size(width: int, height: int) -> tuple[int, int]:
 
 
 def _rate(fps: float) -> Fraction:
-    if not (np.isfinite(fps) and 0 < fps <= 1000):
-        raise ValueError(f"video frame rate {fps}: must be in (0, 1000]")
+    lo, hi = FPS_RANGE
+    if not (np.isfinite(fps) and lo <= fps <= hi):  # 1e-300 would round to a rate of 0 (Fraction(1, 0))
+        raise ValueError(f"video frame rate {fps:.6g}: must be in [{lo:g}, {hi:g}]")
     return Fraction(fps).limit_denominator(1001)
 
 
@@ -65,7 +67,8 @@ class VideoWriter:
         self.frames = 0
         self._last_t: int | None = None  # stamp of the newest frame, in time-base ticks
         self._pending: tuple[np.ndarray, int] | None = None  # variable rate: a frame waits for its duration
-        fd, tmp = tempfile.mkstemp(prefix=f".{self.path.name}.", suffix=".tmp", dir=self.path.parent)
+        # the temp name is ASCII: the encoder refuses names that are not valid UTF-8 (lone surrogates)
+        fd, tmp = tempfile.mkstemp(prefix=".npga-video.", suffix=".tmp", dir=self.path.parent)
         os.close(fd)
         self._tmp = Path(tmp)
         try:
@@ -82,7 +85,7 @@ class VideoWriter:
             self._stream = stream
         except Exception as e:
             self._tmp.unlink(missing_ok=True)
-            raise VideoError(f"{self.path}: cannot write an H.264 video: {e}") from None
+            raise VideoError(f"{shown(self.path)}: cannot write an H.264 video: {shown(str(e))}") from None
         self._durations: dict[int, int] = {}  # pts -> duration of the frames in the encoder
         self._last_duration = 0
 
@@ -121,7 +124,7 @@ class VideoWriter:
             self._container.close()
             self._container = None
             if self.frames == 0:
-                raise VideoError(f"{self.path}: no frames were written")
+                raise VideoError(f"{shown(self.path)}: no frames were written")
             with open(self._tmp, "rb+") as fh:
                 os.fsync(fh.fileno())
             move_into_place(self._tmp, self.path)
@@ -129,7 +132,7 @@ class VideoWriter:
             self._abort()
             if isinstance(e, VideoError | KeyboardInterrupt):
                 raise
-            raise VideoError(f"{self.path}: writing the video failed: {e}") from None
+            raise VideoError(f"{shown(self.path)}: writing the video failed: {shown(str(e))}") from None
         return self.path
 
     def abort(self) -> None:
@@ -170,7 +173,7 @@ class VideoWriter:
             self._mux(self._stream.encode(frame))
         except av.FFmpegError as e:
             self._abort()
-            raise VideoError(f"{self.path}: encoding failed: {e}") from None
+            raise VideoError(f"{shown(self.path)}: encoding failed: {shown(str(e))}") from None
         self.frames += 1
 
     def _mux(self, packets) -> None:

@@ -18,6 +18,8 @@ from pathlib import Path
 
 import numpy as np
 
+from .hostile_values_corpus import _broken_stream, _floats_set, _ply_column, _pose, degenerate_avatars  # noqa: F401
+
 MARKER = "UNPICKLED"  # created next to the corpus if anything is ever unpickled
 
 
@@ -97,6 +99,7 @@ def npy_codes(folder: Path, dim: int) -> dict[str, Path]:
         "bool": _npy(np.ones((4, dim), bool)),
         "empty file": b"",
         "garbage": os.urandom(256),
+        "codes of 3e38 (finite, overflow in the dynamics)": _npy(np.full((4, dim), 3e38, np.float32)),
     }
     return {**_write_all(folder, ".npy", cases), **_special(folder, "codes.npy")}
 
@@ -143,6 +146,20 @@ def npz_sequences(folder: Path, dim: int) -> dict[str, Path]:
         "zip cut in half": good[: len(good) // 2],
         "not a zip": b"PK\x05\x06" + os.urandom(100),
         "empty file": b"",
+        "codes of 3e38": _zip({"codes.npy": _npy(np.full((4, dim), 3e38, np.float32))}),
+        "fps 1e-300": _zip({"codes.npy": codes, "fps.npy": _npy(np.float64(1e-300))}),
+        "pose translations 1e308": _zip({"codes.npy": codes, "pose.npy": _npy(_pose(4, 1e308))}),
+        "old-style translation 1e308": _zip({"codes.npy": codes, "translation.npy": _npy(np.full((4, 3), 1e308))}),
+        "NeRSemble tracking, translations 1e308": _zip({
+            "expression.npy": codes, "rotation.npy": _npy(np.zeros((4, 3))), "translation.npy":
+            _npy(np.full((4, 3), 1e308)), "scale.npy": _npy(np.ones((1, 1))), "jaw.npy": _npy(np.zeros((4, 3))),
+            "neck.npy": _npy(np.zeros((4, 3))), "eyes.npy": _npy(np.zeros((4, 6)))}),
+        "GaussianAvatars flame_param, translations 1e308": _zip({
+            "expr.npy": codes, "rotation.npy": _npy(np.zeros((4, 3))), "translation.npy":
+            _npy(np.full((4, 3), 1e308)), "neck_pose.npy": _npy(np.zeros((4, 3))),
+            "jaw_pose.npy": _npy(np.zeros((4, 3))), "eyes_pose.npy": _npy(np.zeros((4, 6)))}),
+        "broken deflate stream": _broken_stream({"codes.npy": _npy(np.arange(4 * dim, dtype=np.float32)
+                                                                   .reshape(4, dim))}, zipfile.ZIP_DEFLATED),
     }
     return {**_write_all(folder, ".npz", cases), **_special(folder, "seq.npz")}
 
@@ -164,6 +181,9 @@ def mononphm_folders(folder: Path, dim: int) -> dict[str, Path]:
         "z_exp is a FIFO": ["fifo", "fifo"],
         "z_exp is a directory": ["dir", "dir"],
         "no frames at all": [],
+        "z_exp of 3e38": [ok, _npy(np.full((1, dim), 3e38, np.float32))],
+        "only a frame folder named with a superscript digit": [("\u00b2", ok)],
+        "only a frame folder named with Arabic-Indic digits": [("\u0660\u0660\u0661", ok)],
     }
     out = {}
     for i, (name, files) in enumerate(frames.items()):
@@ -171,6 +191,8 @@ def mononphm_folders(folder: Path, dim: int) -> dict[str, Path]:
         root.mkdir()
         for t, content in enumerate(files):
             d = root / f"{t:05d}"
+            if isinstance(content, tuple):  # (folder name, content)
+                d, content = root / content[0], content[1]
             d.mkdir()
             target = d / "z_exp.npy"
             if content == "fifo":
@@ -213,6 +235,14 @@ def npga_files(folder: Path, good: Path) -> dict[str, Path]:
     def wrong_type(h):
         h["gaussians"]["count"] = "600"
 
+    def with_values(tensor: str, value: float) -> bytes:
+        """The good file with every value of `tensor` replaced (the data section, offsets from the header)."""
+        spec = header["tensors"][tensor]
+        body = bytearray(data)
+        n = spec["nbytes"] // 4
+        body[spec["offset"]:spec["offset"] + 4 * n] = np.full(n, value, np.float32).tobytes()
+        return raw[:16 + hlen] + bytes(body)
+
     nested = b'{"format": "npga", "x": ' + b"[" * 50000 + b"]" * 50000 + b"}"
     cases = {
         "empty file": b"",
@@ -229,6 +259,8 @@ def npga_files(folder: Path, good: Path) -> dict[str, Path]:
         "huge number in header": with_header(text=json.dumps(header).replace('"format_version": 1',
                                                                              '"format_version": 1e999').encode()),
         "garbage": os.urandom(4096),
+        "expression std 1e-45": with_values("expression.std", 1e-45),
+        "expression mean 3e38": with_values("expression.mean", 3e38),
     }
     return {**_write_all(folder, ".npga", cases), **_special(folder, "avatar.npga")}
 
@@ -255,8 +287,20 @@ def ply_files(folder: Path, good: Path) -> dict[str, Path]:
         "non-ASCII header": head.replace("ply\n", "ply\ncomment \xff\xfe\n").encode("latin-1") + raw[end:],
         "empty file": b"",
         "only the word ply": b"ply",
+        "log-scales of 100": head.encode() + _ply_column(body, head, "scale_0", 100.0),
+        "quaternions of 1e30": head.encode() + _ply_column(body, head, "rot_0", 1e30),
+        "positions of 1e30": head.encode() + _ply_column(body, head, "x", 1e30),
+        "bare property line": head.replace("property float x\n", "property\nproperty float x\n").encode()
+        + raw[end:],
     }
-    return {**_write_all(folder, ".ply", cases), **_special(folder, "avatar.ply")}
+    out = _write_all(folder, ".ply", cases)
+    sparse = folder / "sparse.ply"  # claims 5e8 vertices; the file really is that long (sparse, no disk used)
+    big = head.replace(f"element vertex {n}", "element vertex 500000000")
+    with open(sparse, "wb") as fh:
+        fh.write(big.encode())
+        fh.truncate(len(big) + 500_000_000 * 4 * len(body) // max(n, 1))
+    out["sparse file claiming 5e8 vertices"] = sparse
+    return {**out, **_special(folder, "avatar.ply")}
 
 
 # -- JSON ------------------------------------------------------------------------------------------------------
@@ -294,7 +338,13 @@ def camera_json(folder: Path) -> dict[str, Path]:
              "fx 1e308 times 10": cam(fx=1e308).replace(b"1e+308", b"1e309"),
              "3x3 world_to_camera": cam(world_to_camera=np.eye(3).tolist()),
              "world_to_camera strings": cam(world_to_camera=[["a"] * 4] * 4),
-             "a list": b"[1, 2, 3]"}
+             "a list": b"[1, 2, 3]",
+             "width true": cam(width=True),
+             "fx 1e300": cam(fx=1e300, fy=1e300),
+             "cx 1e300": cam(cx=1e300),
+             "singular world_to_camera": cam(world_to_camera=np.diag([0.0, 0.0, 0.0, 1.0]).tolist()),
+             "skewed world_to_camera": cam(world_to_camera=[[1, 5, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]]),
+             "translation 1e300": cam(world_to_camera=[[1, 0, 0, 1e300], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, 0, 1]])}
     return {**_write_all(folder, ".json", cases), **_special(folder, "camera.json")}
 
 
@@ -317,7 +367,9 @@ def rig_json(folder: Path) -> dict[str, Path]:
              "world_2_cam 3x4": rig(world_2_cam={"a": np.eye(4)[:3].tolist()}),
              "5000 cameras": rig(world_2_cam={str(i): np.eye(4).tolist() for i in range(5000)}),
              "no cameras": rig(world_2_cam={}),
-             "missing intrinsics": json.dumps({"world_2_cam": good["world_2_cam"]}).encode()}
+             "missing intrinsics": json.dumps({"world_2_cam": good["world_2_cam"]}).encode(),
+             "focal length 1e300": rig(intrinsics=[[1e300, 0.0, 275.0], [0.0, 1e300, 401.0], [0.0, 0.0, 1.0]]),
+             "singular world_2_cam": rig(world_2_cam={"a": np.diag([0.0, 0.0, 0.0, 1.0]).tolist()})}
     return {**_write_all(folder, ".json", cases), **_special(folder, "camera_params.json")}
 
 
@@ -343,7 +395,14 @@ def keyframe_json(folder: Path, dim: int) -> dict[str, Path]:
              "camera key width 0": tl(camera=[{"time": 0.0, "camera": {**cam, "width": 0}}]),
              "version 2": tl(npga_keyframes=2),
              "code_dim a string": tl(code_dim="16"),
-             "keys not a list": tl(expression={"a": 1})}
+             "keys not a list": tl(expression={"a": 1}),
+             "key time 1e9": tl([{"time": 0.0, "code": [0.0] * dim}, {"time": 1e9, "code": [0.0] * dim}]),
+             "key time 1e308": tl([{"time": 0.0, "code": [0.0] * dim}, {"time": 1e308, "code": [0.0] * dim}]),
+             "hold 1e308": tl([{"time": 0.0, "code": [0.0] * dim, "hold": 1e308}]),
+             "code of 3e38": tl([{"time": 0.0, "code": [3e38] * dim}]),
+             "camera key fx 1e300": tl(camera=[{"time": 0.0, "camera": {**cam, "fx": 1e300, "fy": 1e300}}]),
+             "camera key singular": tl(camera=[{"time": 0.0, "camera": {**cam, "world_to_camera":
+                                                                         np.zeros((4, 4)).tolist()}}])}
     return {**_write_all(folder, ".json", cases), **_special(folder, "keyframes.json")}
 
 
@@ -363,7 +422,11 @@ def session_json(folder: Path) -> dict[str, Path]:
              "sliders strings": ses(sliders=["nan"]),
              "timeline speed 'inf'": ses(timeline={"speed": "inf"}),
              "background 1e308": ses(background=[1e308, 0, 0]),
-             "rig_index 10^20": ses(rig_index=10**20)}
+             "rig_index 10^20": ses(rig_index=10**20),
+             "unknown smoothing": ses(timeline={"smoothing": "cubic"}),
+             "one-euro cutoff 0": ses(timeline={"smoothing": "one_euro", "euro_min_cutoff": 0.0}),
+             "exponential alpha 0": ses(timeline={"smoothing": "exponential", "smooth_alpha": 0.0}),
+             "bake budget 0": ses(timeline={"bake_budget_mb": 0.0, "baked": True})}
     return {**_write_all(folder, ".json", cases), **_special(folder, "session.json")}
 
 
@@ -424,6 +487,7 @@ def bake_caches(folder: Path, good: Path) -> dict[str, Path]:
         return raw[:8] + len(t).to_bytes(8, "little") + t + rest
 
     s = header["shape"]
+    table = s[0] * s[2] * 4  # bytes of the lo table, then of the step table
     cases = {
         "shape claims 10^12 rows": with_header(shape=[s[0], 10**12, s[2]]),
         "frames 10^12": with_header(frames=10**12),
@@ -436,6 +500,8 @@ def bake_caches(folder: Path, good: Path) -> dict[str, Path]:
         "truncated": raw[: len(raw) // 2],
         "NaN offsets and steps": raw[:16 + hlen] + np.full(len(rest) // 4, np.nan, np.float32).tobytes(),
         "empty file": b"",
+        "steps of 3e38": raw[:16 + hlen] + _floats_set(rest, table, 2 * table, 3e38),
+        "offsets (lo) of 3e38": raw[:16 + hlen] + _floats_set(rest, 0, table, -3e38),
     }
     return {**_write_all(folder, ".npgabake", cases), **{k: v for k, v in _special(folder, "x.npgabake").items()
                                                         if k != "missing"}}
@@ -466,6 +532,11 @@ def preview_caches(folder: Path, good: Path) -> dict[str, Path]:
         "meta nested JSON": with_members(meta=_npy(np.frombuffer(b"[" * 5000 + b"]" * 5000, np.uint8))),
         "zip cut in half": (zb := _zip(members))[: len(zb) // 2],
         "not a zip": os.urandom(300),
+        "weights of 3e38": with_members(weights=_npy(np.full(neighbours.shape, 3e38, np.float32))),
+        "broken deflate stream": _broken_stream({**members, "weights.npy": _npy(
+            np.linspace(0, 1, neighbours.size, dtype=np.float32).reshape(neighbours.shape))},
+            zipfile.ZIP_DEFLATED),
+        "broken LZMA stream": _broken_stream(members, zipfile.ZIP_LZMA),
     }
     return {**_write_all(folder, ".npz", cases), **{k: v for k, v in _special(folder, "preview.npz").items()
                                                    if k != "missing"}}

@@ -14,6 +14,11 @@ from pathlib import Path
 
 import numpy as np
 
+#: Largest focal length or principal-point coordinate in pixels (`npga_core.files.untrusted` shares it).
+MAX_FOCAL = 1e7
+#: Largest camera translation (scene units).
+MAX_POSITION = 1e4
+
 #: Default image size of the viewer (the NPGA / NeRSemble evaluation resolution).
 DEFAULT_WIDTH = 550
 DEFAULT_HEIGHT = 802
@@ -27,6 +32,21 @@ VIEW_DIRECTIONS: dict[str, tuple[float, float]] = {
     "right": (90.0, 0.0),
     "top": (0.0, 35.0),
 }
+
+
+def rigid_error(w2c: np.ndarray, tol: float = 1e-3) -> str | None:
+    """Why a 4x4 world-to-camera matrix is no similarity transform within `tol` (a singular or skewed block, a
+    translation beyond `MAX_POSITION`, a last row other than 0 0 0 1); None when it is one."""
+    if np.abs(w2c[3] - (0.0, 0.0, 0.0, 1.0)).max() > tol:
+        return "has a last row other than 0 0 0 1"
+    if not np.abs(w2c[:3, 3]).max() <= MAX_POSITION:
+        return f"has a translation beyond +-{MAX_POSITION:g}"
+    r = w2c[:3, :3]
+    gram = r.T @ r
+    s2 = float(np.trace(gram)) / 3.0  # a uniform scale (a head pose's s) is allowed
+    if not (1e-12 <= s2 <= 1e12 and np.abs(gram / s2 - np.eye(3)).max() <= tol and np.linalg.det(r) > 0):
+        return "is not a (scaled) rotation and translation: singular, skewed or mirrored"
+    return None
 
 
 @dataclass
@@ -52,6 +72,12 @@ class Camera:
             raise ValueError(f"image size must be positive, got {self.width}x{self.height}")
         if not (self.fx > 0 and self.fy > 0 and math.isfinite(self.fx) and math.isfinite(self.fy)):
             raise ValueError(f"focal lengths must be positive, got fx={self.fx}, fy={self.fy}")
+        if not max(self.fx, self.fy, abs(self.cx), abs(self.cy)) <= MAX_FOCAL:
+            raise ValueError(f"fx, fy, cx, cy must be within {MAX_FOCAL:g} pixels, got fx={self.fx:.4g}, "
+                             f"fy={self.fy:.4g}, cx={self.cx:.4g}, cy={self.cy:.4g}")
+        why = rigid_error(w2c)
+        if why is not None:
+            raise ValueError(f"world_to_camera {why}")
 
     # --- derived quantities -------------------------------------------------------------------
     @property
@@ -165,7 +191,7 @@ class Camera:
         try:
             scalars = {k: float(data[k]) for k in ("fx", "fy", "cx", "cy")}
             width, height = data["width"], data["height"]
-            if int(width) != width or int(height) != height:
+            if isinstance(width, bool) or isinstance(height, bool) or int(width) != width or int(height) != height:
                 raise ValueError
         except (TypeError, ValueError):
             raise ValueError(f"{source}: width/height must be integers and fx, fy, cx, cy numbers") from None
@@ -238,9 +264,12 @@ def frame_points(points: np.ndarray, width: int = DEFAULT_WIDTH, height: int = D
     `fov` is the vertical field of view in degrees. The camera looks at the centre of the bounding box
     (of the 0.5..99.5 percentiles per axis when `robust`, so stray points do not shrink the subject) and
     backs off until all eight box corners project inside the image shrunk by `margin`. Other directions:
-    "three_quarter_left/right", "left", "right", "top" or (azimuth, elevation) in degrees.
+    "three_quarter_left/right", "left", "right", "top" or (azimuth, elevation) in degrees. Without any
+    points, a 20 cm box at the origin is framed.
     """
     pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(pts) == 0:  # an empty cloud (a valid avatar of 0 Gaussians): a head-sized box at the origin
+        pts = np.array([[-0.1, -0.1, -0.1], [0.1, 0.1, 0.1]])
     pts = pts[np.all(np.isfinite(pts), axis=1)]
     if len(pts) == 0:
         raise ValueError("frame_points: no finite points to frame")

@@ -34,7 +34,15 @@ from scipy.spatial.transform import Rotation, Slerp
 from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
-from npga_core.files.untrusted import MAX_IMAGE_SIDE, MAX_JSON_BYTES, MAX_JSON_DEPTH, read_json
+from npga_core.files.untrusted import (
+    MAX_CODE,
+    MAX_FRAMES,
+    MAX_IMAGE_SIDE,
+    MAX_JSON_BYTES,
+    MAX_JSON_DEPTH,
+    MAX_TIME_S,
+    read_json,
+)
 
 FORMAT_VERSION = 1
 INTERPOLATIONS = ("linear", "smooth")
@@ -245,7 +253,10 @@ class KeyframeTimeline:
         """Times i / fps from 0 through the duration (at least one frame)."""
         if not (math.isfinite(fps) and fps > 0):
             raise ValueError(f"frame rate must be positive, got {fps}")
-        n = int(math.floor(self.duration * fps + 1e-9)) + 1
+        frames = self.duration * fps
+        if not frames < MAX_FRAMES:
+            raise ValueError(f"{self.duration:.6g} s at {fps:g} fps is more than the {MAX_FRAMES} frames allowed")
+        n = int(math.floor(frames + 1e-9)) + 1
         return np.arange(n, dtype=np.float64) / fps
 
     # -- files ------------------------------------------------------------------------------------------
@@ -310,14 +321,16 @@ def _time(key: Key) -> float:
 
 
 def _check_key(key: Key) -> None:
-    if not (math.isfinite(key.time) and key.time >= 0):
-        raise ValueError(f"key time must be a finite number >= 0, got {key.time}")
+    if not (math.isfinite(key.time) and 0 <= key.time <= MAX_TIME_S):
+        raise ValueError(f"key time must be in 0..{MAX_TIME_S:g} seconds, got {key.time:.6g}")
     for name in ("ease_in", "ease_out"):
         v = getattr(key, name)
         if not (math.isfinite(v) and 0.0 <= v <= 1.0):
             raise ValueError(f"{name} must be in 0..1, got {v}")
-    if not (math.isfinite(key.hold) and key.hold >= 0):
-        raise ValueError(f"hold must be a finite number of seconds >= 0, got {key.hold}")
+    if not (math.isfinite(key.hold) and 0 <= key.hold <= MAX_TIME_S):
+        raise ValueError(f"hold must be in 0..{MAX_TIME_S:g} seconds, got {key.hold:.6g}")
+    if isinstance(key, ExpressionKey) and not np.all(np.abs(key.code) <= MAX_CODE):
+        raise ValueError(f"code values must be finite within +-{MAX_CODE:g}")
     if isinstance(key, ExpressionKey) and key.interp not in INTERPOLATIONS:
         raise ValueError(f"interp {key.interp!r} is not one of {', '.join(INTERPOLATIONS)}")
 

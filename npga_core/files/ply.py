@@ -15,7 +15,7 @@ import numpy as np
 
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
-from npga_core.files.untrusted import open_regular, regular_file
+from npga_core.files.untrusted import MAX_LOG_SCALE, MAX_POSITION, MAX_QUAT, open_regular, regular_file
 from npga_core.model.gaussians import GaussianCloud, PosedGaussians, logit, sh_coeff_count
 
 _PLY_TYPES = {
@@ -25,6 +25,11 @@ _PLY_TYPES = {
     "float": "f4", "float32": "f4", "double": "f8", "float64": "f8",
 }
 MAX_HEADER_BYTES = 1 << 20
+#: Most vertices read from one PLY (a claim is checked against this before the file size or any read).
+MAX_VERTICES = 50_000_000
+#: Largest magnitude of each stored attribute, the range its meaning allows (positions in scene units).
+_LIMITS = {"means": MAX_POSITION, "quats": MAX_QUAT, "log_scales": MAX_LOG_SCALE, "opacity_logits": 1e4,
+           "sh": 1e4}
 
 
 def standard_fields(sh_degree: int) -> list[str]:
@@ -70,6 +75,8 @@ def _parse_header(fh) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]]
                 raise _Bad(f"malformed element line {' '.join(words)!r}")
             elements.append((words[1], int(words[2]), []))
         elif words[0] == "property":
+            if len(words) < 3:
+                raise _Bad(f"malformed property line {' '.join(words)!r}")
             if not elements:
                 raise _Bad("property before any element")
             if words[1] == "list":
@@ -94,6 +101,8 @@ def read_ply(path: str | Path) -> GaussianCloud:
         raise AvatarFileError(path, str(e)) from None
     except FileNotFoundError:
         raise AvatarFileError(path, "no such file") from None
+    except MemoryError:
+        raise AvatarFileError(path, "not enough memory to read its vertices") from None
     except OSError as e:
         raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None
 
@@ -107,17 +116,23 @@ def _read_ply(path: Path) -> GaussianCloud:
         if not elements or elements[0][0] != "vertex":
             raise _Bad("the first element is not 'vertex'")
         _, n, props = elements[0]
+        if n > MAX_VERTICES:
+            raise _Bad(f"claims {n} vertices, more than the {MAX_VERTICES} allowed")
+        if not props:
+            raise _Bad("the vertex element has no properties")
         if any(t == "list" for _, t in props):
             raise _Bad("vertex element has list properties; not a 3DGS file")
         names = [p for p, _ in props]
         if len(set(names)) != len(names):
             raise _Bad("vertex element has duplicate property names")
-        if fmt == "ascii":
+        if fmt == "ascii" and n == 0:
+            cols = {name: np.zeros(0) for name in names}
+        elif fmt == "ascii":
             try:
                 rows = np.loadtxt(fh, dtype=np.float64, max_rows=n, ndmin=2)
             except ValueError as e:
                 raise _Bad(f"malformed ASCII vertex data: {e}") from None
-            if rows.shape[0] != n or (n and rows.shape[1] < len(props)):
+            if rows.shape[0] != n or rows.shape[1] != len(props):
                 raise _Bad(f"truncated: {rows.shape[0]} of {n} vertex rows")
             cols = {name: rows[:, i] for i, name in enumerate(names)}
         else:
@@ -127,6 +142,8 @@ def _read_ply(path: Path) -> GaussianCloud:
             if size < need:
                 raise _Bad(f"truncated: {n} vertices need {need} bytes, the file has {size}")
             data = np.fromfile(fh, dtype=dt, count=n)
+            if data.shape[0] != n:  # the file shrank while it was read
+                raise _Bad(f"truncated: {data.shape[0]} of {n} vertices could be read")
             cols = {name: data[name] for name in names}
     missing = [f for f in standard_fields(0) if f not in cols and f not in ("nx", "ny", "nz")]
     if missing:
@@ -156,10 +173,12 @@ def _read_ply(path: Path) -> GaussianCloud:
         sh=sh,
         features=np.zeros((n, 0), np.float32),
     )
-    for name in ("means", "quats", "log_scales", "opacity_logits", "sh"):
+    for name, limit in _LIMITS.items():
         a = getattr(cloud, name)
         if not np.isfinite(a).all():
             raise _Bad(f"{name} has {int(a.size - np.isfinite(a).sum())} NaN/Inf values")
+        if a.size and not np.abs(a).max() <= limit:
+            raise _Bad(f"{name} reach {float(np.abs(a).max()):.3g}, beyond the +-{limit:g} they may have")
     if n and (np.einsum("ij,ij->i", cloud.quats, cloud.quats) < 1e-16).any():
         raise _Bad("some rotations are zero-length quaternions")
     return cloud
@@ -180,7 +199,7 @@ def write_ply(path: str | Path, means: np.ndarray, quats: np.ndarray, log_scales
     data[:, 6:9] = sh[:, 0, :]
     o = 9
     if k > 1:
-        data[:, o : o + 3 * (k - 1)] = np.asarray(sh[:, 1:, :]).transpose(0, 2, 1).reshape(n, -1)
+        data[:, o : o + 3 * (k - 1)] = np.asarray(sh[:, 1:, :]).transpose(0, 2, 1).reshape(n, 3 * (k - 1))
         o += 3 * (k - 1)
     data[:, o] = opacity_logits
     data[:, o + 1 : o + 4] = log_scales

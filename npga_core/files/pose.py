@@ -23,7 +23,11 @@ from pathlib import Path
 import numpy as np
 
 from npga_core.errors import AvatarFileError
+from npga_core.files.untrusted import MAX_POSITION
 from npga_core.model import rotations
+
+#: Range of a tracked scale.
+SCALE_RANGE = (1e-6, 1e6)
 
 SIMILARITY = "x_world = s R x + t (rotation axis-angle)"
 MONONPHM = "MonoNPHM: x_world = R^T (x - t) / s (its rot/trans/scale map world to NPHM space)"
@@ -45,6 +49,9 @@ def finite_rows(a, t: int, width: int, path: str | Path, key: str) -> np.ndarray
     a = a.reshape(t, width).astype(np.float64)
     if not np.isfinite(a).all():
         raise AvatarFileError(path, f"{key} has NaN/Inf values (frame {int(np.argmax(~np.isfinite(a).all(1)))})")
+    big = ~(np.abs(a) <= MAX_POSITION).all(1)
+    if big.any():
+        raise AvatarFileError(path, f"{key} has values beyond +-{MAX_POSITION:g} (frame {int(np.argmax(big))})")
     return a
 
 
@@ -61,10 +68,11 @@ def frame_scales(scale, t: int, path: str | Path, key: str = "scale") -> np.ndar
     else:
         raise AvatarFileError(path, f"{key} must be one value or one per frame ({t},), got shape {a.shape}")
     a = a.astype(np.float64)
-    bad = ~(np.isfinite(a) & (a > 0))
+    bad = ~(np.isfinite(a) & (a >= SCALE_RANGE[0]) & (a <= SCALE_RANGE[1]))
     if bad.any():
         i = int(np.argmax(bad))
-        raise AvatarFileError(path, f"{key} must be finite and positive (frame {i} is {a[i]:.4g})")
+        raise AvatarFileError(path, f"{key} must be finite and positive (frame {i} is {a[i]:.4g}) within "
+                              f"[{SCALE_RANGE[0]:g}, {SCALE_RANGE[1]:g}]")
     return a
 
 
@@ -145,4 +153,9 @@ def checked_pose(pose, t: int, path: str | Path) -> np.ndarray:
     why = rotations.similarity_error(a)
     if why is not None:
         raise AvatarFileError(path, f"pose {why}")
+    if not (np.abs(a[:, :3, 3]) <= MAX_POSITION).all():
+        raise AvatarFileError(path, f"pose has translations beyond +-{MAX_POSITION:g}")
+    s = np.cbrt(np.abs(np.linalg.det(a[:, :3, :3].astype(np.float64))))
+    if not ((s >= SCALE_RANGE[0]) & (s <= SCALE_RANGE[1])).all():
+        raise AvatarFileError(path, f"pose has scales outside [{SCALE_RANGE[0]:g}, {SCALE_RANGE[1]:g}]")
     return a.astype(np.float64)

@@ -8,14 +8,15 @@ import numpy as np
 
 from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError
-from npga_core.files.untrusted import image_size, json_dict, read_json
+from npga_core.files.untrusted import image_size, json_dict, read_json, shown
 
 #: Most cameras read from one rig file.
 MAX_CAMERAS = 1024
 
 
 def load_rig(path: str | Path) -> dict[str, Camera]:
-    """Cameras by serial. The image size is taken from `image_size` [w, h] if present, else 2*cx x 2*cy.
+    """Cameras by serial (escaped with `shown`: lone surrogates or newlines never reach the UI). The image
+    size is taken from `image_size` [w, h] if present, else 2*cx x 2*cy.
 
     Read as untrusted JSON (regular file, size and depth bounds); image sides must be within
     `MAX_IMAGE_SIDE`, at most `MAX_CAMERAS` cameras.
@@ -38,7 +39,8 @@ def load_rig(path: str | Path) -> dict[str, Camera]:
         w, h = image_size(size[0], size[1], path)
         cams = {}
         for serial, m in w2c.items():
-            cams[str(serial)] = Camera(_matrix(m, (4, 4), f"world_2_cam[{serial!r}]"), fx, fy, cx, cy, w, h)
+            m44 = _matrix(m, (4, 4), f"world_2_cam[{shown(serial)!r}]")
+            cams[shown(serial)] = Camera(m44, fx, fy, cx, cy, w, h)  # serials are shown (imgui): escaped
     except (TypeError, ValueError, AttributeError, OverflowError) as e:
         raise AvatarFileError(path, f"bad camera data: {e}") from None
     if not cams:

@@ -18,7 +18,7 @@ import numpy as np
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
 from npga_core.files.pose import SIMILARITY, checked_pose, similarity_pose
-from npga_core.files.untrusted import npz_names, real_floats
+from npga_core.files.untrusted import FPS_RANGE, MAX_CODE, bounded_floats, npz_names, real_floats
 from npga_core.files.untrusted import read_npz as read_npz_arrays
 
 DEFAULT_FPS = 25.0
@@ -91,8 +91,9 @@ def validate_sequence(seq: ExpressionSequence, path: Path) -> ExpressionSequence
         raise AvatarFileError(path, f"expression codes must be (T, D) with T, D >= 1, got shape {c.shape}")
     if not np.isfinite(c).all():
         raise AvatarFileError(path, "expression codes have NaN/Inf values")
-    if not (np.isfinite(seq.fps) and 0 < seq.fps <= 1000):
-        raise AvatarFileError(path, f"frame rate {seq.fps} is not in (0, 1000]")
+    bounded_floats(c, path, "expression codes", MAX_CODE)
+    if not (np.isfinite(seq.fps) and FPS_RANGE[0] <= seq.fps <= FPS_RANGE[1]):
+        raise AvatarFileError(path, f"frame rate {seq.fps:.6g} is not in [{FPS_RANGE[0]:g}, {FPS_RANGE[1]:g}]")
     if seq.pose is not None:
         seq.pose = checked_pose(seq.pose, c.shape[0], path)
     return seq

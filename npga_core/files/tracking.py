@@ -11,6 +11,7 @@ sorted by number). Stage 1 stores the frame's own code, shape (1, D) or (D,); st
 from __future__ import annotations
 
 import math
+import re
 from pathlib import Path
 
 import numpy as np
@@ -20,13 +21,20 @@ from npga_core.files.pose import MONONPHM, mononphm_pose
 from npga_core.files.sequences import DEFAULT_FPS, MAX_SEQUENCE_BYTES, ExpressionSequence
 from npga_core.files.untrusted import read_npy, real_floats
 
+#: A frame folder's name: ASCII digits only (str.isdigit also takes other scripts' digits and superscripts).
+_FRAME_NAME = re.compile(r"[0-9]{1,12}")
+
 
 def _frame_dirs(root: Path) -> list[tuple[int, Path]]:
     frames = []
     for p in root.iterdir():
-        if p.is_dir() and p.name.isdigit() and (p / "z_exp.npy").is_file():
+        if _FRAME_NAME.fullmatch(p.name) and p.is_dir() and (p / "z_exp.npy").is_file():
             frames.append((int(p.name), p))
     return sorted(frames)
+
+
+#: Most bytes read from all the frame files of one folder together (stage 2 repeats the whole table per frame).
+MAX_FOLDER_READ_BYTES = 4 * 2**30
 
 
 def _load(path: Path) -> np.ndarray:
@@ -34,10 +42,15 @@ def _load(path: Path) -> np.ndarray:
     return real_floats(read_npy(path, MAX_SEQUENCE_BYTES, path.stem), path, path.stem, np.float64)
 
 
-def _row(path: Path, t_index: int, n_frames: int, tail: tuple[int, ...]) -> np.ndarray:
+def _row(path: Path, t_index: int, n_frames: int, tail: tuple[int, ...], budget: list[int] | None = None
+         ) -> np.ndarray:
     """Frame t's entry of shape `tail` ((W,) for a row, (3, 3) for a matrix) from a per-frame array (one entry,
-    with or without a leading 1) or a whole (T, *tail) table; `tail` () takes the row's width as it comes."""
-    a = _load(path)
+    with or without a leading 1) or a whole (T, *tail) table; `tail` () takes the row's width as it comes.
+    Only the entry is converted to float64 and kept (a view would pin the whole table); `budget` ([bytes
+    left]) bounds what all frames of a folder read together."""
+    a = read_npy(path, MAX_SEQUENCE_BYTES if budget is None else min(MAX_SEQUENCE_BYTES, budget[0]), path.stem)
+    if budget is not None:
+        budget[0] -= a.nbytes
     k = len(tail) or 1
     if a.ndim == k + 1 and a.shape[0] == n_frames and n_frames > 1 and (not tail or a.shape[1:] == tail):
         entry = a[t_index]
@@ -45,6 +58,8 @@ def _row(path: Path, t_index: int, n_frames: int, tail: tuple[int, ...]) -> np.n
         entry = a.reshape(a.shape[1:] if a.ndim == k + 1 else a.shape)
     else:
         raise AvatarFileError(path, f"shape {a.shape} is neither one frame's entry nor a ({n_frames}, ...) table")
+    entry = real_floats(entry, path, path.stem, np.float64).copy()
+    del a
     if not tail:
         return entry.reshape(-1)
     if entry.size != math.prod(tail):
@@ -76,7 +91,8 @@ def load_mononphm_folder(root: str | Path) -> ExpressionSequence:
     if not frames:
         raise AvatarFileError(root, "no frame folders with z_exp.npy (expected ROOT/00000/z_exp.npy, ...)")
     n = len(frames)
-    rows = [_row(p / "z_exp.npy", i, n, ()) for i, (_, p) in enumerate(frames)]
+    budget = [MAX_FOLDER_READ_BYTES]
+    rows = [_row(p / "z_exp.npy", i, n, (), budget) for i, (_, p) in enumerate(frames)]
     for (_, p), row in zip(frames, rows, strict=True):
         if row.shape != rows[0].shape:
             raise AvatarFileError(p / "z_exp.npy", f"code has {row.size} values, frame {frames[0][1].name} has "

@@ -10,6 +10,10 @@ file is closed everywhere at once:
   and a total budget);
 - only numeric dtypes (no object, structured or complex arrays; `allow_pickle` is never set), and
   `real_floats` turns an array into finite float32/float64 values or refuses it;
+- numbers are checked against the range their meaning allows (`bounded_floats` and the limits below:
+  positions, log-scales, codes, translations, focal lengths, times, frame rates), and every computed output
+  is checked finite before it is drawn or written (`finite_output`);
+- names and paths of any encoding are shown escaped (`shown`, from npga_core.errors);
 - JSON has a size bound and a nesting-depth bound checked by a non-recursive scan before parsing; NaN,
   Infinity, non-finite floats and absurdly long integers are refused.
 
@@ -20,17 +24,21 @@ from __future__ import annotations
 
 import io
 import json
+import lzma
 import math
 import os
 import stat
 import zipfile
+import zlib
 from collections.abc import Iterable
 from pathlib import Path
 from typing import IO, Any
 
 import numpy as np
 
-from npga_core.errors import AvatarFileError
+from npga_core.camera.cameras import MAX_FOCAL, MAX_POSITION  # noqa: F401  (shared limits: pixels, positions)
+from npga_core.errors import AvatarFileError, shown  # noqa: F401  (shown: the escaping of every shown name)
+from npga_core.model.expression import MAX_CODE, STD_RANGE  # noqa: F401  (codes, PCA std)
 
 #: Largest JSON file read by default (sessions, keyframes, rigs, presets).
 MAX_JSON_BYTES = 16 * 1024 * 1024
@@ -42,6 +50,16 @@ MAX_NPZ_MEMBERS = 256
 MAX_IMAGE_SIDE = 16384
 #: Longest integer literal accepted in JSON (digits).
 MAX_INT_DIGITS = 40
+#: Largest magnitude of a log-scale (as the `.npga` reader).
+MAX_LOG_SCALE = 80.0
+#: Largest magnitude of a quaternion component (its square must stay far within float32).
+MAX_QUAT = 1e6
+#: Range of a frame rate (frames per second).
+FPS_RANGE = (0.01, 1000.0)
+#: Largest time (seconds) of a key or a sequence (one day).
+MAX_TIME_S = 86400.0
+#: Most frames a timeline or a sequence may make a command render or bake.
+MAX_FRAMES = 1_000_000
 
 _NUMERIC_KINDS = "fiu"
 _NPY_MAX_HEADER = 10000
@@ -249,7 +267,7 @@ def read_npz(path: str | Path, max_bytes: int, keys: Iterable[str] | None = None
     except MemoryError:
         raise AvatarFileError(p, "not enough memory to read it") from None
     except (ValueError, OSError, EOFError, SyntaxError, TypeError, OverflowError, zipfile.BadZipFile,
-            NotImplementedError, RuntimeError) as e:
+            NotImplementedError, RuntimeError, zlib.error, lzma.LZMAError) as e:
         raise AvatarFileError(p, f"not a readable npz ({e})") from None
     return out
 
@@ -283,6 +301,27 @@ def real_floats(arr: Any, path: str | Path, what: str, dtype: Any = np.float32) 
     if not np.isfinite(out).all():
         raise AvatarFileError(path, f"{what} have values beyond the range of {np.dtype(dtype).name}")
     return out
+
+
+def bounded_floats(arr: Any, path: str | Path, what: str, limit: float, dtype: Any = np.float32) -> np.ndarray:
+    """`real_floats` whose magnitudes are at most `limit` (the range the values' meaning allows)."""
+    out = real_floats(arr, path, what, dtype)
+    if out.size:
+        peak = float(np.abs(out).max())
+        if not peak <= limit:
+            raise AvatarFileError(path, f"{what} reach {peak:.3g}, beyond the +-{limit:g} they may have")
+    return out
+
+
+def finite_output(arrays: dict[str, Any], source: str | Path, what: str) -> None:
+    """AvatarFileError naming `source` and the first field of `arrays` holding NaN/Inf (a computed output,
+    checked before it is drawn or written)."""
+    for name, a in arrays.items():
+        a = np.asarray(a)
+        if a.size and a.dtype.kind == "f" and not np.isfinite(a).all():
+            bad = int(a.size - np.count_nonzero(np.isfinite(a)))
+            raise AvatarFileError(source, f"{what}: {name} has {bad} NaN/Inf values (the file's numbers "
+                                  "overflow when used); nothing was written")
 
 
 # --------------------------------------------------------------------------------------------------
@@ -381,9 +420,11 @@ def json_number(value: Any, path: str | Path, what: str, lo: float = -math.inf, 
     """A finite real number in [lo, hi] (bools refused)."""
     if isinstance(value, bool) or not isinstance(value, int | float):
         raise AvatarFileError(path, f"{what} must be a number, got {type(value).__name__}")
+    if isinstance(value, int) and abs(value).bit_length() > 1000:
+        raise AvatarFileError(path, f"{what} is an integer of {abs(value).bit_length()} bits, out of range")
     v = float(value)
     if not (math.isfinite(v) and lo <= v <= hi):
-        raise AvatarFileError(path, f"{what} is {value}, outside [{lo}, {hi}]")
+        raise AvatarFileError(path, f"{what} is {v:.6g}, outside [{lo:g}, {hi:g}]")
     return v
 
 
@@ -393,6 +434,8 @@ def json_int(value: Any, path: str | Path, what: str, lo: int = 0, hi: int = 2**
         value = int(value)
     if isinstance(value, bool) or not isinstance(value, int):
         raise AvatarFileError(path, f"{what} must be an integer, got {type(value).__name__}")
+    if abs(value).bit_length() > 128:
+        raise AvatarFileError(path, f"{what} is an integer of {abs(value).bit_length()} bits, out of range")
     if not lo <= value <= hi:
         raise AvatarFileError(path, f"{what} is {value}, outside [{lo}, {hi}]")
     return value

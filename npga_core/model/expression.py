@@ -10,6 +10,11 @@ from dataclasses import dataclass, field
 
 import numpy as np
 
+#: Range of a PCA standard deviation and largest magnitude of a code value (shared with
+#: npga_core.files.untrusted, which checks every number read against these).
+STD_RANGE = (1e-6, 1e4)
+MAX_CODE = 1e4
+
 
 @dataclass
 class ExpressionSpace:
@@ -37,7 +42,7 @@ class ExpressionSpace:
         mean = codes.mean(axis=0)
         _, s, vt = np.linalg.svd(codes - mean, full_matrices=False)
         std = s / np.sqrt(codes.shape[0] - 1)
-        keep = std > min_std * max(1.0, float(std[0]) if std.size else 1.0)
+        keep = (std > min_std * max(1.0, float(std[0]) if std.size else 1.0)) & (std >= STD_RANGE[0])
         if n_components is not None:
             keep &= np.arange(std.size) < n_components
         vt, std = vt[keep], std[keep]
@@ -70,8 +75,13 @@ class ExpressionSpace:
             raise ValueError(f"basis has shape {self.basis.shape}, mean has {self.mean.shape}")
         if self.std.shape != (self.basis.shape[0],):
             raise ValueError(f"std has shape {self.std.shape}, expected ({self.basis.shape[0]},)")
-        if np.any(self.std <= 0):
-            raise ValueError("std has values <= 0")
+        lo, hi = STD_RANGE
+        if not np.all((self.std >= lo) & (self.std <= hi)):
+            raise ValueError(f"std has values outside [{lo:g}, {hi:g}] (they scale the sliders both ways)")
+        for what, a in (("mean", self.mean), ("basis", self.basis), *((f"named expression {n!r}", c)
+                                                                        for n, c in self.named.items())):
+            if not np.all(np.abs(a) <= MAX_CODE):
+                raise ValueError(f"{what} has values that are NaN/Inf or beyond +-{MAX_CODE:g}")
         gram = self.basis.astype(np.float64) @ self.basis.T.astype(np.float64)
         if self.basis.shape[0] and np.abs(gram - np.eye(gram.shape[0])).max() > 1e-3:
             raise ValueError("PCA basis rows are not orthonormal")

@@ -32,6 +32,8 @@ BAKE_FORMAT = 1
 _ALIGN = 64
 _MAX_HEADER = 1 << 16  # bytes of a cache file's JSON header
 _MAX_FRAMES = 10**7  # frames of a cached sequence
+#: Largest magnitude of a cached offset (positions, log-scales, SH, ...: far beyond any avatar's).
+MAX_OFFSET = 1e6
 
 
 def bake_key(avatar_key: str, codes: np.ndarray, bits: int, budget_bytes: int) -> str:
@@ -188,8 +190,8 @@ class BakeStore:
                 return None  # truncated (or a header claiming more than the file holds)
             lo = np.fromfile(path, np.float32, stored * n_width, offset=start).reshape(stored, n_width)
             step = np.fromfile(path, np.float32, stored * n_width, offset=start + table).reshape(stored, n_width)
-            if not (np.isfinite(lo).all() and np.isfinite(step).all()):
-                return None
+            if not (np.all(np.abs(lo) <= MAX_OFFSET) and np.all((step >= 0) & (step <= MAX_OFFSET / 255.0))):
+                return None  # NaN/Inf, or offsets no avatar has (3e38 steps make the avatar vanish)
             data = np.memmap(path, np.dtype(dtype), "r", start + 2 * table, (stored, n_rows, n_width))
             store = BakeStore(key, frames, stride, data, lo, step, np.ones(stored, bool))
         except (AvatarFileError, OSError, ValueError, KeyError, TypeError, MemoryError):

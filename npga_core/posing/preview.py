@@ -34,11 +34,13 @@ from scipy.spatial import cKDTree
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
 from npga_core.files.places import cache_folder_for
-from npga_core.files.untrusted import json_dict, json_int, parse_json, read_npz, real_floats
+from npga_core.files.untrusted import bounded_floats, json_dict, json_int, parse_json, read_npz, real_floats
 from npga_core.posing.fastpose import FastPoser
 
 PREVIEW_FORMAT = 1
 MAX_CACHED_NEIGHBOURS = 64  # probes per Gaussian accepted from a cache file
+#: Largest magnitude of a cached interpolation weight (geometric weights are in [0, 1], fitted ones near).
+MAX_WEIGHT = 1e4
 
 
 @dataclass
@@ -135,7 +137,7 @@ class PreviewModel:
             if sens is not None and sens.shape != (n,):
                 return None
             model = PreviewModel(probes.astype(np.int64), neighbours.astype(np.int64),
-                                 real_floats(weights, path, "weights"),
+                                 bounded_floats(weights, path, "weights", MAX_WEIGHT),
                                  None if sens is None else real_floats(sens, path, "sensitivity"),
                                  json_int(meta.get("fitted_codes", 0), path, "fitted_codes", 0, 2**20), key)
         except (AvatarFileError, OSError, ValueError, KeyError):

@@ -60,6 +60,29 @@ def jitter(codes: np.ndarray) -> float:
     return float(np.sqrt(np.mean(np.sum(acc * acc, axis=1))))
 
 
+METHODS = ("none", "exponential", "one_euro")
+#: Range of a bake's memory budget in MB accepted from a file (0 made the viewer wait for a bake forever).
+BAKE_BUDGET_MB = (16.0, float(1 << 20))
+
+
+def check_playback(timeline: object) -> None:
+    """ValueError for playback settings read from a file (a session's timeline: `smoothing`, `smooth_alpha`,
+    `euro_min_cutoff`, `euro_beta`, `bake_budget_mb`) that `smooth` or the bake would refuse later."""
+    method = getattr(timeline, "smoothing", "none")
+    if method not in METHODS:
+        raise ValueError(f"timeline.smoothing {str(method)[:40]!r} is not one of {', '.join(METHODS)}")
+    alpha, cutoff, beta = (float(getattr(timeline, k, d)) for k, d in
+                           (("smooth_alpha", 0.5), ("euro_min_cutoff", 1.0), ("euro_beta", 0.5)))
+    if not 0.0 < alpha <= 1.0:
+        raise ValueError(f"timeline.smooth_alpha {alpha:.4g} is not in (0, 1]")
+    if not (0.0 < cutoff <= 1e4 and 0.0 <= beta <= 1e4):
+        raise ValueError(f"timeline.euro_min_cutoff {cutoff:.4g} must be in (0, 1e4], euro_beta {beta:.4g} in [0, 1e4]")
+    budget = float(getattr(timeline, "bake_budget_mb", BAKE_BUDGET_MB[0]))
+    if not BAKE_BUDGET_MB[0] <= budget <= BAKE_BUDGET_MB[1]:
+        raise ValueError(f"timeline.bake_budget_mb {budget:.4g} is not in [{BAKE_BUDGET_MB[0]:g}, "
+                         f"{BAKE_BUDGET_MB[1]:g}]")
+
+
 def smooth(codes: np.ndarray, method: str, fps: float, alpha: float = 0.5, min_cutoff: float = 1.0,
            beta: float = 0.5) -> np.ndarray:
     """Dispatch by name: "none", "exponential" or "one_euro"."""

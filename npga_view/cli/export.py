@@ -59,6 +59,7 @@ def run(args: argparse.Namespace) -> int:
     AvatarFileError (cli.main prints it and exits 2)."""
     from npga_core.files.loading import load_avatar
     from npga_core.files.ply import save_posed_ply
+    from npga_core.files.untrusted import finite_output
 
     out: Path = args.out
     try:
@@ -76,6 +77,8 @@ def run(args: argparse.Namespace) -> int:
         from npga_core.posing.headpose import transform_posed
 
         posed = transform_posed(posed, transform)
+    fields = {k: getattr(posed, k) for k in ("means", "quats", "scales", "opacities", "sh")}
+    finite_output(fields, args.sequence or args.expr or args.avatar, "the posed Gaussians")
     save_posed_ply(posed, out)
     print(f"wrote {len(posed):,} Gaussians to {out}")
     return 0

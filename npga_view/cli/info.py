@@ -6,6 +6,7 @@ import argparse
 import os
 import time
 
+from npga_core.errors import shown
 from npga_core.files.loading import load_avatar
 from npga_core.model.avatar import Avatar
 
@@ -39,17 +40,18 @@ def _mlp_lines(key: str, net) -> list[str]:
 def summary(avatar: Avatar, path: str, load_s: float) -> str:
     """The text `info` prints."""
     c = avatar.cloud
-    lines = [f"{path}"]
+    lines = [shown(path)]
     size = os.path.getsize(path) if os.path.isfile(path) else 0
     lines.append(f"  size on disk: {size / 1e6:.2f} MB, loaded in {load_s * 1000:.0f} ms")
-    lines.append(f"  gaussians: {len(c):,}  (units: {avatar.units})")
+    empty = "  (empty: nothing to draw)" if len(c) == 0 else ""
+    lines.append(f"  gaussians: {len(c):,}  (units: {shown(avatar.units)}){empty}")
     lines.append(f"  SH degree: {c.sh_degree} ({c.sh.shape[1]} coefficients x 3)")
     lines.append(f"  features f: {c.feature_dim}   latent h: {c.latent_dim}")
     if c.part_ids is not None and c.part_names:
         import numpy as np
 
         counts = np.bincount(c.part_ids[c.part_ids >= 0].astype(np.int64), minlength=len(c.part_names))
-        lines.append("  parts: " + ", ".join(f"{n} {k:,}" for n, k in zip(c.part_names, counts, strict=True)))
+        lines.append("  parts: " + ", ".join(f"{shown(n)} {k:,}" for n, k in zip(c.part_names, counts, strict=True)))
     if avatar.dynamics is None:
         lines.append("  dynamics: none (static)")
     else:
@@ -82,14 +84,14 @@ def summary(avatar: Avatar, path: str, load_s: float) -> str:
         top = ", ".join(f"{s:.3g}" for s in ex.std[:5])
         lines.append(f"  PCA components: {ex.n_components} (std of the first: {top})")
         if ex.named:
-            lines.append(f"  named expressions: {', '.join(ex.named)}")
+            lines.append(f"  named expressions: {', '.join(shown(n) for n in ex.named)}")
     prov = avatar.provenance
     if prov:
         keys = ("source", "path", "settings_from", "rotation_normalisation", "super_resolution", "created_at",
                 "written_by", "builder", "seed")
-        shown = ", ".join(f"{k}={prov[k]}" for k in keys if k in prov)
-        if shown:
-            lines.append(f"  provenance: {shown}")
+        text = ", ".join(f"{k}={shown(str(prov[k]))}" for k in keys if k in prov)
+        if text:
+            lines.append(f"  provenance: {text}")
     return "\n".join(lines)
 
 

@@ -192,7 +192,10 @@ def _timeline(args, avatar, camera: Camera) -> tuple[list, list[Camera], float]:
     if tl.expression and avatar.code_dim == 0:
         raise RenderError(f"{args.timeline}: the avatar is static (no dynamics), it takes no expression keys")
     tl.check_code_dim(avatar.code_dim, args.timeline)
-    times = tl.frame_times(args.fps)
+    try:
+        times = tl.frame_times(args.fps)
+    except ValueError as exc:
+        raise RenderError(f"{args.timeline}: {exc}") from None
     cameras = [tl.camera_at(t, camera.width, camera.height) or camera for t in times]
     return [tl.code_at(t) for t in times], cameras, float(args.fps)
 
@@ -317,6 +320,7 @@ class _Frames:
         from npga_core.inspection.inspector import Inspector
 
         self.avatar, self.renderer, self.camera = avatar, renderer, camera
+        self.source = args.timeline or args.sequence or args.expr or args.avatar  # named when a pose overflows
         self.mode, self.background, self.legend = args.mode, background, not args.no_legend
         self.raw_npy = str(args.out).lower().endswith(".npy")
         self.use_cnn = not args.no_cnn and self.mode == "rgb" and avatar.cnn is not None
@@ -330,9 +334,14 @@ class _Frames:
         self.counts: dict | None = None
 
     def render(self, code: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """(raw float image, uint8 RGB picture)."""
+        """(raw float image, uint8 RGB picture); AvatarFileError naming `self.source` when the posed Gaussians
+        are not finite (the file's numbers overflow in the dynamics or the pose)."""
+        from npga_core.files.untrusted import finite_output
+
         r, cam = self.renderer, self.camera
         posed = self.avatar.pose(code)
+        finite_output({k: getattr(posed, k) for k in ("means", "quats", "scales", "opacities", "sh")},
+                      self.source, "the posed Gaussians")
         if self.inspecting:
             return self._inspect(posed, code)
         r.set_gaussians(posed)
@@ -438,6 +447,7 @@ def _progress(done: int, total: int, started: float) -> None:
 
 
 def _render(args) -> int:
+    from npga_core.errors import shown
     from npga_core.files.loading import load_avatar
     from npga_core.posing.headpose import posed_camera
     from npga_view.rendering.factory import create_renderer, describe
@@ -472,6 +482,8 @@ def _render(args) -> int:
     if getattr(args, "verbose", False):
         print(f"renderer: {describe(renderer)}", file=sys.stderr)
     frames = _Frames(avatar, renderer, camera if cameras is None else cameras[0], args, background)
+    if len(avatar.cloud) == 0:
+        print(f"note: {shown(args.avatar)} has no Gaussians; the image is empty")
     if suffix != ".mp4":
         image, picture = frames.render(None if codes is None else codes[0])
         if suffix == ".npy":

@@ -1,0 +1,111 @@
+"""Degenerate but valid avatars through `render` in a fresh process (GL in a forked child of the corpus's fork
+server is not reliable): an empty image, a note saying so, exit 0, no traceback or warning."""
+
+from __future__ import annotations
+
+import os
+import subprocess
+import sys
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+from . import hostile_corpus as hc
+
+pytestmark = pytest.mark.skipif(not sys.platform.startswith("linux"), reason="headless GL on Linux")
+
+
+@pytest.fixture(scope="module")
+def degenerate(tmp_path_factory) -> dict[str, Path]:
+    from npga_core.files.checkpoint import save_avatar
+    from npga_core.files.ply import save_ply
+    from npga_core.model.synthetic import make_synthetic_avatar
+
+    root = tmp_path_factory.mktemp("degenerate")
+    good_npga, good_ply = root / "good.npga", root / "good.ply"
+    save_avatar(make_synthetic_avatar(60, seed=5), good_npga)
+    save_ply(make_synthetic_avatar(50, with_f=False, with_g=False).cloud, good_ply)
+    cases = root / "cases"
+    cases.mkdir()
+    return hc.degenerate_avatars(cases, good_ply, good_npga, guards=True)
+
+
+@pytest.mark.parametrize("case", ["avatar of 0 Gaussians", "ASCII PLY of 0 vertices", "all at one point"])
+def test_render_degenerate_avatar(case, degenerate, tmp_path):
+    src, out = degenerate[case], tmp_path / "o.npy"
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, "-m", "npga_view.cli", "render", str(src), "--out", str(out),
+                        "--width", "32", "--height", "24"], capture_output=True, text=True, timeout=300, cwd=root,
+                       env={**os.environ, "PYTHONPATH": str(root), "DISPLAY": ""})
+    assert r.returncode == 0, r.stderr[-2000:]
+    assert "Traceback" not in r.stderr and "warning" not in r.stderr.lower(), r.stderr
+    image = np.load(out)
+    assert np.isfinite(image).all()
+    if "0" in case:
+        assert "no Gaussians" in r.stdout
+        assert np.abs(image).max() == 0.0 or np.ptp(image) == 0.0  # only the background
+
+
+def test_video_at_a_path_with_undecodable_bytes(tmp_path):
+    """A guard (today's PyAV took it too): the temp file is ASCII, the video lands at its undecodable name."""
+    from npga_view.video import VideoWriter
+
+    out = tmp_path / os.fsdecode(b"clip-\xff\xfe.mp4")  # a lone surrogate in Python's view of the name
+    with VideoWriter(out, 32, 32, fps=10) as w:
+        for _ in range(3):
+            w.write(np.zeros((32, 32, 3), np.uint8))
+    assert out.is_file() and out.stat().st_size > 0
+
+
+def test_video_rate_that_rounds_to_zero_is_one_line():
+    from npga_view.video import VideoWriter
+
+    with pytest.raises(ValueError, match="frame rate"):
+        VideoWriter(Path("x.mp4"), 32, 32, fps=1e-300)
+
+
+def test_errors_escape_what_they_name():
+    """AvatarFileError escapes lone surrogates, undecodable bytes and newlines in the path and the problem, so
+    the message can be printed, drawn by imgui and encoded as UTF-8."""
+    from npga_core.errors import AvatarFileError, shown
+
+    err = AvatarFileError(os.fsdecode(b"a\xff\nb.npga"), "part \ud800 name\nis odd")
+    text = str(err)
+    text.encode("utf-8")  # no lone surrogate left
+    assert "\n" not in text and "\\udcff" in text and "\\n" in text and "\\ud800" in text
+    assert shown("plain name ✓.npga") == "plain name ✓.npga"
+
+
+def test_outputs_are_checked_finite_before_they_are_written():
+    """The last line of defence of export/render: a NaN/Inf in a computed output is one line naming the input
+    and the field."""
+    from npga_core.errors import AvatarFileError
+    from npga_core.files.untrusted import bounded_floats, finite_output
+
+    finite_output({"means": np.zeros((3, 3), np.float32)}, "in.npy", "posed")
+    with pytest.raises(AvatarFileError, match=r"in\.npy: posed: scales has 1 NaN/Inf"):
+        finite_output({"means": np.zeros((3, 3)), "scales": np.array([1.0, np.inf])}, "in.npy", "posed")
+    with pytest.raises(AvatarFileError, match=r"codes reach 3e\+38"):
+        bounded_floats(np.full(4, 3e38, np.float32), "c.npy", "codes", 1e4)
+
+
+def test_stage2_rows_do_not_pin_their_tables(tmp_path):
+    """A stage-2 MonoNPHM frame file holds the whole (T, D) table: each frame keeps only its own row, converted
+    alone (no float64 copy of the table, no view keeping it alive)."""
+    from npga_core.files.tracking import _row, load_mononphm_folder
+
+    table = np.arange(3 * 5, dtype=np.float32).reshape(3, 5)
+    for t in range(3):
+        (tmp_path / f"{t:05d}").mkdir()
+        np.save(tmp_path / f"{t:05d}" / "z_exp.npy", table)
+    row = _row(tmp_path / "00001" / "z_exp.npy", 1, 3, ())
+    assert row.base is None or row.base.nbytes == row.nbytes  # its own memory, not a view of the table
+    assert row.dtype == np.float64 and row.tolist() == table[1].tolist()
+    seq = load_mononphm_folder(tmp_path)
+    assert np.array_equal(seq.codes, table)
+    budget = [table.nbytes * 2]  # room for two of the three tables
+    for t in range(2):
+        _row(tmp_path / f"{t:05d}" / "z_exp.npy", t, 3, (), budget)
+    with pytest.raises(Exception, match="z_exp.npy"):
+        _row(tmp_path / "00002" / "z_exp.npy", 2, 3, (), budget)
