@@ -307,7 +307,7 @@ def apply_offsets(cloud_t: dict[str, torch.Tensor], off: Offsets | dict[str, tor
     if (d := totals.get("opacity")) is not None:
         posed["opacity_logits"] = ATTRIBUTE_OPS["opacity"].apply(cloud_t["opacity_logits"], d[:, 0])
     if (d := totals.get("sh")) is not None:
-        sh = cloud_t["sh"].clone().reshape(n, -1)
+        sh = cloud_t["sh"].clone().reshape(n, cloud_t["sh"].shape[1] * 3)
         w = d.shape[1]
         sh[:, :w] = ATTRIBUTE_OPS["sh"].apply(sh[:, :w], d)
         posed["sh"] = sh.reshape(cloud_t["sh"].shape)

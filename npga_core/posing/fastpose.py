@@ -572,7 +572,7 @@ def _attribute_major(canonical: dict[str, torch.Tensor | None]) -> dict[str, tor
     soa = {k: canonical[k].t().contiguous() for k in ("means", "log_scales", "quats")}
     soa["unit_quats"] = _unit(soa["quats"].clone())
     soa["opacity_logits"] = canonical["opacity_logits"].contiguous()
-    soa["sh"] = canonical["sh"].reshape(canonical["sh"].shape[0], -1)
+    soa["sh"] = canonical["sh"].reshape(canonical["sh"].shape[0], canonical["sh"].shape[1] * 3)
     if canonical.get("latent") is not None:
         soa["latent"] = canonical["latent"]
     return soa
