@@ -3,7 +3,6 @@ each is reported in the side panel as one line naming the file, and the window k
 
 from __future__ import annotations
 
-import os
 import sys
 
 import numpy as np
@@ -13,27 +12,14 @@ from npga_core.files.checkpoint import save_avatar
 from npga_core.model.synthetic import make_synthetic_avatar
 
 from . import hostile_corpus as hc
-from .xvfb import start_xvfb, stop
+from .xvfb import xvfb_display
 
 pytestmark = [pytest.mark.gui, pytest.mark.skipif(not sys.platform.startswith("linux"), reason="FIFOs, Xvfb")]
 
 
 @pytest.fixture(scope="module")
 def display():
-    try:
-        proc, name = start_xvfb()
-    except RuntimeError as e:
-        if os.environ.get("CI"):
-            raise
-        pytest.skip(str(e))
-    old = os.environ.get("DISPLAY")
-    os.environ["DISPLAY"] = name
-    yield name
-    if old is None:
-        os.environ.pop("DISPLAY", None)
-    else:
-        os.environ["DISPLAY"] = old
-    stop(proc)
+    yield from xvfb_display()
 
 
 def test_window_reports_hostile_files_and_stays_up(display, tmp_path, monkeypatch):
