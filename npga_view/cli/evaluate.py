@@ -116,8 +116,8 @@ def run(args) -> int:
 
 def _evaluate(args) -> int:
     from npga_core.evaluation.capture import load_capture
-    from npga_core.evaluation.views import frame_code, load_view, resolve_mask_kind
     from npga_core.evaluation.metrics import Lpips, lpips_status, score
+    from npga_core.evaluation.views import frame_code, load_view, resolve_mask_kind
     from npga_core.files.loading import load_avatar, load_sequence
     from npga_view.cli.evaluate_report import write_report
     from npga_view.cli.render import parse_background
