@@ -21,6 +21,7 @@ MODES: tuple[Mode, ...] = ("a", "b", "side", "wipe", "blend", "difference")
 #: the default top of the heatmap's scale: a mean absolute error of 0.25 (of the 0..1 range) shows as yellow
 DEFAULT_VMAX = 0.25
 BAR_WIDTH = 0.06  # of the image width
+MIN_BAR_IMAGE = (160, 100)  # smaller images get no colour bar
 
 
 @dataclass(frozen=True)
@@ -68,7 +69,7 @@ def _draw_bar(img: np.ndarray, vmax: float) -> None:
     h, w = img.shape[:2]
     bw = max(4, int(w * BAR_WIDTH))
     top, bottom = max(2, h // 20), h - max(2, h // 20)
-    if bottom - top < 8 or w < 3 * bw:
+    if w < MIN_BAR_IMAGE[0] or h < MIN_BAR_IMAGE[1]:  # a thumbnail: the bar would hide the image
         return
     x0 = w - bw - max(2, w // 100)
     ramp = np.linspace(255, 0, bottom - top).astype(np.intp)
