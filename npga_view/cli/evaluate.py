@@ -26,7 +26,9 @@ from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError
 
 NPGA_SIZE = (550, 802)  # (width, height) of the paper's metrics
-#: NeRSemble's frontal camera (camera id 8 of the rig), held out for evaluation in the paper
+#: NeRSemble's frontal camera, held out for evaluation in the paper: nersemble-benchmark's constants.py lists it
+#: as the "center" of BENCHMARK_NVS_HOLD_OUT_SERIALS and as SERIALS[8]; GaussianAvatars' doc/offline_render.md
+#: renders the NeRSemble "front view" with `--select_camera_id 8`
 NERSEMBLE_FRONTAL = "222200037"
 
 
