@@ -1,7 +1,8 @@
 """Capture readers without rendering: GHA's preprocessed folders (GaussianHeadAvatar `lib/dataset/Dataset.py`
 reads `images/NNNN/image_CAM.jpg`, `mask_CAM.jpg` and `cameras/NNNN/camera_CAM.npz` with `extrinsic` and
 `intrinsic`; its __getitem__ resizes each image to `original_resolution` (2048, config/config.py L38) before using the
-intrinsic, L216 and L232-243, so the intrinsic is in pixels of a 2048x2048 image), the image cache budget, the frame -> code correspondence and the paper's 550x802 framing."""
+intrinsic, L216 and L232-243, so the intrinsic is in pixels of a 2048x2048 image), the image cache budget, the
+frame -> code correspondence and the paper's 550x802 framing."""
 
 from __future__ import annotations
 
