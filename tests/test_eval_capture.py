@@ -1,6 +1,8 @@
 """Capture readers without rendering: GHA's preprocessed folders (GaussianHeadAvatar `lib/dataset/Dataset.py`
 reads `images/NNNN/image_CAM.jpg`, `mask_CAM.jpg` and `cameras/NNNN/camera_CAM.npz` with `extrinsic` and
-`intrinsic`), the image cache budget, the frame -> code correspondence and the paper's 550x802 framing."""
+`intrinsic`; its __getitem__ resizes each image to `original_resolution` (2048, config/config.py L38) before using the
+intrinsic, L216 and L232-243, so the intrinsic is in pixels of a 2048x2048 image), the image cache budget, the
+frame -> code correspondence and the paper's 550x802 framing."""
 
 from __future__ import annotations
 
@@ -23,7 +25,7 @@ def _gha(root, frames=(0, 1), cams=("00", "01")):
             cv2.imwrite(str(root / "images" / f"{f:04d}" / f"image_{c}.jpg"), np.full((32, 24, 3), 128, np.uint8))
             cv2.imwrite(str(root / "images" / f"{f:04d}" / f"mask_{c}.jpg"), np.full((32, 24), 255, np.uint8))
             np.savez(root / "cameras" / f"{f:04d}" / f"camera_{c}.npz", extrinsic=np.eye(4)[:3],
-                     intrinsic=np.array([[30.0, 0, 12], [0, 30, 16], [0, 0, 1]]))
+                     intrinsic=np.array([[2560.0, 0, 1024], [0, 2560, 1024], [0, 0, 1]]))
 
 
 def test_gha_folders_are_read_and_problems_listed(tmp_path):
@@ -33,7 +35,9 @@ def test_gha_folders_are_read_and_problems_listed(tmp_path):
     assert cap.layout == GHA and cap.frames == [0, 1] and len(cap.views) == 3
     assert len(cap.problems) == 1 and "camera_01.npz" in cap.problems[0] and "missing" in cap.problems[0]
     v = cap.views[(0, "00")]
-    assert (v.camera.width, v.camera.height, v.camera.fx, v.camera.cx) == (24, 32, 30.0, 12.0)
+    # K of a 2048x2048 image scaled to the 24x32 file as GHA's resize to 2048 implies
+    c = v.camera
+    assert (c.width, c.height, c.fx, c.fy, c.cx, c.cy) == (24, 32, 2560 * 24 / 2048, 2560 * 32 / 2048, 12.0, 16.0)
     assert cap.image(v.image_path).shape == (32, 24, 3) and cap.image(v.mask_path, grey=True).max() == 1.0
     cap.image(cap.views[(1, "00")].image_path)
     assert cap.cached_bytes <= 32 * 24 * 3 * 4 + 1  # the budget holds one colour image: the older one left

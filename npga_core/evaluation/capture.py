@@ -6,7 +6,7 @@
   `timesteps/frame_NNNNN/facer_segmentation_masks/segmentation_cam_SERIAL.png`.
 - GaussianHeadAvatar's preprocessed folders: `images/NNNN/image_CAM.jpg` with `mask_CAM.jpg`, and
   `cameras/NNNN/camera_CAM.npz` holding `extrinsic` (3x4 or 4x4 world -> camera, OpenCV) and `intrinsic` (3x3,
-  pixels of that image).
+  pixels of a 2048x2048 image: scaled to the file's own size, see GHA_ORIGINAL_RESOLUTION).
 
 A missing image, an unreadable file or a camera the rig lacks is one line in `problems`; the rest is evaluated.
 """
@@ -27,6 +27,11 @@ from npga_core.files.sequences import ExpressionSequence
 from npga_core.files.untrusted import MAX_IMAGE_SIDE, read_npz, real_floats
 
 DEFAULT_BUDGET_BYTES = 1 << 30
+#: GHA's `dataset.original_resolution` (config/config.py: "should match the intrinsic"): its preprocessing saves K
+#: for 2048x2048 images (preprocess/preprocess_nersemble.py, SIZE), and its Dataset resizes every image it reads to
+#: that size before using K (lib/dataset/Dataset.py, __getitem__), so K is in pixels of a 2048x2048 image whatever
+#: the size of the file on disk (e.g. the 256x256 `image_lowres_` files)
+GHA_ORIGINAL_RESOLUTION = 2048
 NERSEMBLE, GHA = "nersemble", "gha"
 _FRAME = re.compile(r"frame_(\d+)$")
 _NUMBER = re.compile(r"(\d+)")
@@ -223,7 +228,8 @@ def _gha_camera(path: Path, image: Path) -> Camera | None:
     if img is None:
         return None
     h, w = img.shape[:2]
-    return Camera(w2c, k[0, 0], k[1, 1], k[0, 2], k[1, 2], w, h)
+    sx, sy = w / GHA_ORIGINAL_RESOLUTION, h / GHA_ORIGINAL_RESOLUTION  # K is in pixels of a 2048x2048 image
+    return Camera(w2c, k[0, 0] * sx, k[1, 1] * sy, k[0, 2] * sx, k[1, 2] * sy, w, h)
 
 
 def code_index(sequence: ExpressionSequence, frame: int, position: int) -> int | None:

@@ -26,7 +26,9 @@ from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError
 
 NPGA_SIZE = (550, 802)  # (width, height) of the paper's metrics
-#: NeRSemble's frontal camera (camera id 8 of the rig), held out for evaluation in the paper
+#: NeRSemble's frontal camera, held out for evaluation in the paper: nersemble-benchmark's constants.py lists it
+#: as the "center" of BENCHMARK_NVS_HOLD_OUT_SERIALS and as SERIALS[8]; GaussianAvatars' doc/offline_render.md
+#: renders the NeRSemble "front view" with `--select_camera_id 8`
 NERSEMBLE_FRONTAL = "222200037"
 
 
@@ -115,8 +117,9 @@ def run(args) -> int:
 
 
 def _evaluate(args) -> int:
-    from npga_core.evaluation.capture import code_index, load_capture
+    from npga_core.evaluation.capture import load_capture
     from npga_core.evaluation.metrics import Lpips, lpips_status, score
+    from npga_core.evaluation.views import frame_code, load_view, resolve_mask_kind
     from npga_core.files.loading import load_avatar, load_sequence
     from npga_view.cli.evaluate_report import write_report
     from npga_view.cli.render import parse_background
@@ -145,9 +148,7 @@ def _evaluate(args) -> int:
         cameras = [held]
         notes.append(f"protocol npga: {NPGA_SIZE[0]}x{NPGA_SIZE[1]} images (captures downsampled to cover, "
                      f"centre-cropped), held-out frontal camera {held} only")
-    mask_kind = args.mask
-    if mask_kind == "auto":
-        mask_kind = "face" if capture.has_face_masks else "alpha"
+    mask_kind = resolve_mask_kind(capture, args.mask)
     if mask_kind == "face" and not capture.has_face_masks:
         raise EvaluateError(f"{args.capture}: --mask face, but the capture has no face masks")
     if args.protocol == "npga" and mask_kind != "face":
@@ -176,31 +177,19 @@ def _evaluate(args) -> int:
     posed_frame = None
     t0 = time.perf_counter()
     for i, (f, c) in enumerate(views):
-        v = capture.views[(f, c)]
         try:
-            image = capture.image(v.image_path)
-            path = {"face": v.face_mask_path, "alpha": v.mask_path}.get(mask_kind)
-            mask = capture.image(path, grey=True) if path is not None else None
+            view = load_view(capture, capture.views[(f, c)], mask_kind)
         except AvatarFileError as e:
             problems.append(str(e))
             continue
-        if mask is not None and mask_kind == "face":
-            mask = (mask > 0).astype(np.float32)
-        cam = v.camera
-        if image.shape[:2] != (cam.height, cam.width):
-            problems.append(f"{v.image_path}: {image.shape[1]}x{image.shape[0]}, other than its camera's "
-                            f"{cam.width}x{cam.height}")
-            continue
+        cam, image, mask = view.camera, view.image, view.mask
         if args.protocol == "npga":
             cam, image, mask = protocol_view(cam, image, mask)
         if posed_frame != f:
-            code = None
-            if seq is not None:
-                k = code_index(seq, f, frames.index(f))
-                if k is None:
-                    problems.append(f"{args.sequence}: no expression code for frame {f}")
-                    continue
-                code = seq.codes[k]
+            found, code = frame_code(seq, frames, f)
+            if not found:
+                problems.append(f"{args.sequence}: no expression code for frame {f}")
+                continue
             renderer.set_gaussians(avatar.pose(code))
             posed_frame = f
         render = renderer.render(cam, background)

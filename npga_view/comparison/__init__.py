@@ -1,0 +1,1 @@
+"""Comparison views: the avatar against a capture or a second avatar (see view.py)."""
