@@ -27,6 +27,7 @@ from npga_core.model.gaussians import PosedGaussians
 from npga_core.posing.engine import PoseEngine
 from npga_core.posing.headpose import has_head_pose, head_transform, posed_camera
 from npga_view.actions import Dispatcher
+from npga_view.comparison.controller import CompareController
 from npga_view.controllers.actions import ActionController
 from npga_view.controllers.bake import BakeController
 from npga_view.controllers.editing import EditController, highlight
@@ -107,6 +108,9 @@ class ViewerApp:
         cnn_device = device if device.startswith("cuda") else "cpu"
         self.refining = RefineController(Refiner(self.ctx, cnn_device), self.renderer, self.draws, self.state,
                                          self.info)
+        # the Compare panel's views: the avatar against a capture or a second avatar (npga_view/comparison)
+        self.compare = CompareController(self.ctx, cnn_device)
+        self.avatar_version = 0  # incremented when the avatar or its canonical cloud changes (edits)
         self.threads = threads
         self.device = device  # where the worker runs the dynamics ("cpu", "cuda", "mps", "auto")
         self.remember_recent = remember_recent
@@ -136,6 +140,7 @@ class ViewerApp:
         self.dispatcher = Dispatcher()
         self.dispatcher.register(self.actions.handlers())
         self.dispatcher.register(self.edits.handlers())
+        self.dispatcher.register(self.compare.handlers())
         self.panels = Panels(files=FilesPanel(browse=os.getcwd()))
         self.inspector: Inspector | None = None
         self._inspect_key: tuple | None = None
@@ -162,6 +167,7 @@ class ViewerApp:
             self.engine.close()
             self.engine = None
         self.avatar = avatar
+        self.avatar_version += 1
         self.state.avatar_path = path if path == "demo" else str(Path(path).resolve())
         ex = avatar.expression
         k = ex.n_components if ex is not None else 0
@@ -244,6 +250,7 @@ class ViewerApp:
 
     def cloud_changed(self, worker_path: str | None) -> None:
         """The canonical cloud was edited: re-pose it (in the worker, from `worker_path`, if animatable)."""
+        self.avatar_version += 1
         self.inspector = Inspector(self.avatar)
         self.refining.set_avatar(self.avatar)
         self.lod.reset()
@@ -371,6 +378,8 @@ class ViewerApp:
             return
         if self.edits.mouse((x0, 0.0), scale):
             return
+        if imgui.is_mouse_down(0) and self.compare.drag_divider(io.mouse_pos.x * scale):
+            return  # the wipe's divider follows the mouse
         if self.state.inspect.pick_on_click:
             if imgui.is_mouse_clicked(0):
                 self._click_pos = (io.mouse_pos.x, io.mouse_pos.y)
@@ -464,6 +473,9 @@ class ViewerApp:
                                                     self._colouring, cam, self.renderer.drawn_mask(), NEAR)
             self.info.inspect.error = self.info.inspect.error or err
         x, y, w, h = self._viewport()
+        if self.compare.show(self.avatar, self.avatar_version, self.poses.shown_code, cam, self.state.background,
+                             self.draws.budget_ms * 0.5, self.ctx.screen, (x, y, w, h), self.state.report):
+            return  # the Compare panel's comparison replaces the splat view
         if self.refining.present(cam, self.ctx.screen, (x, y, w, h)):
             return
         bg = self.state.background if self.state.mode == "rgb" else (0.0, 0.0, 0.0)
@@ -497,13 +509,14 @@ class ViewerApp:
         info.recording = self.recorder.recording
         info.bake, info.bake_state = self.bakes.status, self.bakes.state()
         self.poses.publish(info)
+        info.compare = self.compare.info()
         self.edits.publish(info)
 
     def _quiet(self) -> bool:
         """Nothing to draw in this window until something arrives: the view's image is on screen and nothing is
         being drawn or refined, no input held, no playback, recording or queued action (a pose may be on its way
         from the worker)."""
-        return (self.draws.idle and self.refining.complete and not self._input_active()
+        return (self.draws.idle and self.refining.complete and not self.compare.busy and not self._input_active()
                 and not self.state.actions and not self.recorder.recording)
 
     def step(self) -> None:
@@ -619,6 +632,7 @@ class ViewerApp:
         if self.window is not None:
             self.lod.close()
             self.refining.release()
+            self.compare.release()
             imgui.backends.opengl3_shutdown()
             imgui.backends.glfw_shutdown()
             imgui.destroy_context()

@@ -11,7 +11,7 @@ import numpy as np
 import pytest
 
 from npga_core.evaluation.compare import CompareSettings, compose
-from npga_core.evaluation.metrics import score
+from npga_core.evaluation.metrics import composite_background, score
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from reference_rasterizer import rasterize  # noqa: E402
@@ -53,9 +53,9 @@ def _run(view, avatar, camera, budget_ms=2.0, code=None, version=0, limit_s=120.
     calls = 0
     deadline = time.monotonic() + limit_s
     while time.monotonic() < deadline:
-        view.update(avatar, version, code, camera, BG, budget_ms)
+        view.update(avatar, version, code, camera, budget_ms)
         calls += 1
-        if view.status.ready and view.has_image and (view.sources.capture is None or view.status.scores):
+        if view.status.ready and view.has_image and view.status.scores:
             return calls
         time.sleep(0.002)
     raise AssertionError(f"comparison not ready: {view.status.text}")
@@ -84,18 +84,20 @@ def test_capture_view_is_drawn_in_slices_at_the_capture_camera_and_scored_like_e
         r = create_renderer(ctx, cam.width, cam.height)
         r.set_gaussians(demo.pose(None))
         expected = r.render(cam, BG)
-        np.testing.assert_allclose(view.composed(), expected, atol=1e-5)
         # scored as evaluate scores: the capture's image and alpha mask, the same background
         captured = view._prepared.capture
+        # shown as scored: both composited over the background outside the capture's mask
+        shown = composite_background(expected, captured.mask, BG).astype(np.float32)
+        np.testing.assert_allclose(view.composed(), shown, atol=1e-5)
         s = score(np.clip(expected, 0, 1), captured.image, captured.mask, BG)
         got = view.status.scores["a"]
         assert got.psnr == pytest.approx(s.psnr, abs=0.01) and got.ssim == pytest.approx(s.ssim, abs=1e-4)
         assert got.psnr > 30.0 and got.masked
         # the wipe shows the render left of the divider and the capture right of it
         view.set_mode("wipe", 0.5)
-        view.update(demo, 0, None, any_camera, BG, 2.0)
-        assert np.allclose(view.composed(), compose(expected.astype(np.float32), captured.image.astype(np.float32),
-                                                    CompareSettings("wipe", 0.5)), atol=1e-5)
+        view.update(demo, 0, None, any_camera, 2.0)
+        cap_shown = composite_background(captured.image, captured.mask, BG).astype(np.float32)
+        assert np.allclose(view.composed(), compose(shown, cap_shown, CompareSettings("wipe", 0.5)), atol=1e-5)
     finally:
         view.release()
 
@@ -119,6 +121,7 @@ def test_a_b_difference_of_an_avatar_and_its_edited_copy(ctx, demo):
     logits = np.array(b.cloud.opacity_logits)
     logits[: len(logits) // 2] = -30.0  # half the Gaussians made transparent
     b.cloud.opacity_logits = logits
+    b.invalidate_caches()  # as every edit does
     view = _view(ctx)
     view.use_cnn = False
     view.set_pair("a-b")
@@ -141,10 +144,10 @@ def test_a_b_difference_of_an_avatar_and_its_edited_copy(ctx, demo):
 def test_missing_inputs_say_what_to_open(ctx, demo):
     view = _view(ctx)
     try:
-        assert not view.update(demo, 0, None, _cameras(demo)[SERIALS[1]], BG, 2.0)
+        assert not view.update(demo, 0, None, _cameras(demo)[SERIALS[1]], 2.0)
         assert "capture" in view.status.text
         view.set_pair("a-b")
-        view.update(demo, 0, None, _cameras(demo)[SERIALS[1]], BG, 2.0)
+        view.update(demo, 0, None, _cameras(demo)[SERIALS[1]], 2.0)
         assert "second avatar" in view.status.text
         with pytest.raises(ValueError):
             view.set_pair("a-c")

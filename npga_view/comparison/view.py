@@ -6,6 +6,9 @@ camera's own size and intrinsics, so pixels correspond, posed with the expressio
 window's camera. `pair` picks the two images shown ("a-capture", "b-capture", "a-b"); the mode (wipe, blend,
 difference heatmap, side by side) is `npga_core.evaluation.compare`'s.
 
+Where the capture has a mask (alpha matte or face mask), every image shown is composited over the background
+outside it, as `evaluate` scores them, so the heatmap shows the error the scores count.
+
 The UI frame's budget is kept: capture images are read and both avatars posed (exact, as `evaluate` does) on a
 worker thread; the splats are drawn in slices (`begin_draw`/`continue_draw`) and the latent image likewise; the CNN
 (when the avatar has one and it is on) runs on its refiner's thread; composing and uploading one image is the only
@@ -24,7 +27,7 @@ import numpy as np
 
 from npga_core.camera.cameras import Camera
 from npga_core.evaluation.compare import CompareSettings, compose
-from npga_core.evaluation.metrics import Scores, score
+from npga_core.evaluation.metrics import Scores, composite_background, score
 from npga_core.model.avatar import Avatar
 from npga_view.comparison.sources import CompareSources, Job, Prepared
 from npga_view.rendering.factory import create_renderer
@@ -62,6 +65,7 @@ class CompareView:
         self.settings = CompareSettings("wipe")
         self.pair = "a-capture"
         self.use_cnn = True
+        self.background = (1.0, 1.0, 1.0)  # of the renders and outside the masks, as `evaluate --background`
         self.status = CompareStatus()
         self._device = device
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="npga-compare")
@@ -74,6 +78,7 @@ class CompareView:
         self._drawings: dict[str, _Drawing] = {}
         self._composed_key: tuple | None = None
         self._scores: dict[str, Scores] = {}
+        self._masked: tuple[int, dict[str, np.ndarray]] | None = None  # images composited outside the mask
         self._score_future: Future | None = None
         self._cancel = threading.Event()
         self.viewport: tuple[int, int, int, int] | None = None  # where the image was last presented
@@ -104,10 +109,10 @@ class CompareView:
 
     # --- per UI frame ---------------------------------------------------------------------------------
     def update(self, avatar: Avatar | None, avatar_version: int, code: np.ndarray | None, camera: Camera,
-               background: tuple[float, float, float], budget_ms: float) -> bool:
+               budget_ms: float) -> bool:
         """Advance the comparison of the current inputs by about `budget_ms` of GL work; True when the image on
         screen changed. `camera` and `code` are the window's (used where no capture decides them)."""
-        job = self.sources.job(avatar, avatar_version, code, camera, background, self.use_cnn, self.pair)
+        job = self.sources.job(avatar, avatar_version, code, camera, self.background, self.use_cnn, self.pair)
         if job is None:
             self._drop()
             self.status = CompareStatus(self.sources.why_not(self.pair))
@@ -134,7 +139,7 @@ class CompareView:
         for f in self._refiners.values():
             f.cancel()
         self._job, self._prepared, self._drawings, self._composed_key = job, None, {}, None
-        self._scores, self._score_future = {}, None
+        self._scores, self._score_future, self._masked = {}, None, None
         self._future = self._pool.submit(self.sources.prepare, job, self._cancel)
         self.status = CompareStatus(f"{job.label}: reading and posing")
 
@@ -203,10 +208,18 @@ class CompareView:
         return False
 
     def _images(self) -> dict[str, np.ndarray]:
-        prep = self._prepared
+        """The images to compose: with a capture that has a mask, every image is composited over the background
+        outside it, as the scores see them (`npga_core.evaluation.metrics.score`)."""
+        prep, job = self._prepared, self._job
         out = {role: d.image for role, d in self._drawings.items() if d.image is not None}
         if prep is not None and prep.capture is not None:
             out["capture"] = prep.capture.image
+            if prep.capture.mask is not None and job is not None:
+                if self._masked is None or self._masked[0] != len(out):
+                    m = prep.capture.mask
+                    self._masked = (len(out), {k: composite_background(v, m, job.background).astype(np.float32)
+                                               for k, v in out.items()})
+                return self._masked[1]
         return out
 
     def _compose(self) -> bool:
@@ -223,7 +236,7 @@ class CompareView:
             self.status = CompareStatus(f"{job.label}: drawing ({stages or 'images'}; {done} done)",
                                         dict(self._scores))
             return False
-        self._start_scores(images, prep)
+        self._start_scores(prep)
         key = (job.key, self.settings)
         if key == self._composed_key:
             self._collect_scores(job)
@@ -236,16 +249,18 @@ class CompareView:
         self._collect_scores(job)
         return True
 
-    def _start_scores(self, images: dict[str, np.ndarray], prep: Prepared) -> None:
-        if self._score_future is not None or prep.capture is None:
+    def _start_scores(self, prep: Prepared) -> None:
+        """Score on the worker, as `evaluate` does (from the raw images: `score` applies the mask itself): each
+        avatar against the capture, or A against B without one."""
+        raw = {role: d.image for role, d in self._drawings.items() if d.image is not None}
+        if self._score_future is not None or len(raw) < len(prep.posed) or self._job is None:
             return
-        pairs = {role: images[role] for role in prep.posed if role in images}
-        if len(pairs) < len(prep.posed):
-            return
-        cap = prep.capture
-        bg = self._job.background if self._job is not None else (1.0, 1.0, 1.0)
-        self._score_future = self._pool.submit(
-            lambda: {role: score(img, cap.image, cap.mask, bg) for role, img in pairs.items()})
+        cap, bg = prep.capture, self._job.background
+        if cap is not None:
+            self._score_future = self._pool.submit(
+                lambda: {role: score(img, cap.image, cap.mask, bg) for role, img in raw.items()})
+        elif "a" in raw and "b" in raw:
+            self._score_future = self._pool.submit(lambda: {"a-b": score(raw["a"], raw["b"])})
 
     def _collect_scores(self, job: Job) -> None:
         f = self._score_future

@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from npga_view.panels.compare import ComparePanel
 from npga_view.panels.edit import EditPanel
 from npga_view.panels.expression import ExpressionPanel
 from npga_view.panels.files import FilesPanel
@@ -27,11 +28,13 @@ class Panels:
     inspect: InspectPanel = field(default_factory=InspectPanel)
     keyframes: KeyframesPanel = field(default_factory=KeyframesPanel)
     edit: EditPanel = field(default_factory=EditPanel)
+    compare: ComparePanel = field(default_factory=ComparePanel)
     stats: StatsOverlay = field(default_factory=StatsOverlay)
 
     @property
     def side(self) -> tuple:
-        return (self.files, self.view, self.expression, self.timeline, self.inspect, self.keyframes, self.edit)
+        return (self.files, self.view, self.expression, self.timeline, self.compare, self.inspect, self.keyframes,
+                self.edit)
 
     @property
     def overlays(self) -> tuple:

@@ -10,6 +10,7 @@ from npga_core.files.sequences import ExpressionSequence
 from npga_core.inspection.inspector import InspectInfo
 from npga_core.model.avatar import Avatar
 from npga_core.posing.engine import BakeStatus
+from npga_view.comparison.snapshot import CompareInfo
 
 
 @dataclass
@@ -26,6 +27,7 @@ class AppInfo:
     interpolated: bool = False  # ... interpolated between two stored frames of the bake
     bake: BakeStatus | None = None  # progress of the sequence's bake
     bake_state: str = "none"  # BakeController.state()
+    compare: CompareInfo | None = None  # the Compare panel's snapshot (CompareController.info)
     engine_status: dict = field(default_factory=dict)  # the pose worker's report: device, first layer, preview
     achieved_fps: float = 0.0
     skipped: int = 0
