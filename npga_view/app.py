@@ -24,6 +24,7 @@ from npga_core.files.sequences import ExpressionSequence
 from npga_core.inspection.inspector import InspectInfo, Inspector
 from npga_core.model.avatar import Avatar
 from npga_core.model.gaussians import PosedGaussians
+from npga_core.posing.device import resolve_device
 from npga_core.posing.engine import PoseEngine
 from npga_core.posing.headpose import has_head_pose, head_transform, posed_camera
 from npga_view.actions import Dispatcher
@@ -103,10 +104,9 @@ class ViewerApp:
         self.state = ViewerState()
         self.state.merged_live = level_of_detail
         self.info = AppInfo(renderer_path=self.renderer.path)
-        # the screen-space CNN (on the dynamics' GPU when one is asked for) and latent views, on settled images
-        cnn_device = device if device.startswith("cuda") else "cpu"
-        self.refining = RefineController(Refiner(self.ctx, cnn_device), self.renderer, self.draws, self.state,
-                                         self.info)
+        # the screen-space CNN (on the device asked for, as the dynamics) and latent views, on settled images
+        self.refining = RefineController(Refiner(self.ctx, resolve_device(device)), self.renderer, self.draws,
+                                         self.state, self.info)
         self.threads = threads
         self.device = device  # where the worker runs the dynamics ("cpu", "cuda", "mps", "auto")
         self.remember_recent = remember_recent
@@ -494,6 +494,7 @@ class ViewerApp:
         info = self.info
         info.avatar, info.sequence = self.avatar, self.sequence
         info.rig_names = list(self.actions.rig)
+        info.cnn_device = str(self.refining.refiner.device)
         info.recording = self.recorder.recording
         info.bake, info.bake_state = self.bakes.status, self.bakes.state()
         self.poses.publish(info)

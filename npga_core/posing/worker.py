@@ -67,7 +67,8 @@ class _Worker:
         import torch
 
         from npga_core.files.loading import load_avatar
-        from npga_core.posing.fastpose import FastPoser, resolve_device
+        from npga_core.posing.device import resolve_device
+        from npga_core.posing.fastpose import FastPoser
 
         self.path, self.opts = path, options
         self.slot_state, self.req_q, self.res_q = slot_state, req_q, res_q
