@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field
 
 from npga_view.panels.edit import EditPanel
+from npga_view.panels.errors import ErrorsPanel
 from npga_view.panels.expression import ExpressionPanel
 from npga_view.panels.files import FilesPanel
 from npga_view.panels.inspect import InspectPanel
@@ -28,10 +29,12 @@ class Panels:
     keyframes: KeyframesPanel = field(default_factory=KeyframesPanel)
     edit: EditPanel = field(default_factory=EditPanel)
     stats: StatsOverlay = field(default_factory=StatsOverlay)
+    errors: ErrorsPanel = field(default_factory=ErrorsPanel)
 
     @property
     def side(self) -> tuple:
-        return (self.files, self.view, self.expression, self.timeline, self.inspect, self.keyframes, self.edit)
+        return (self.errors, self.files, self.view, self.expression, self.timeline, self.inspect, self.keyframes,
+                self.edit)
 
     @property
     def overlays(self) -> tuple:
