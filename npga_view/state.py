@@ -91,7 +91,7 @@ class Timeline:
     baked: bool = False  # play from the bake of the sequence (when one is of these codes), else live
     bake_budget_mb: float = 1024.0  # memory of a bake; longer sequences store every k-th frame and interpolate
     bake_cache: bool = True  # keep the bake in a cache file next to the avatar, reused while nothing changed
-    head_pose: bool = True  # move the head as tracked when the sequence has a head pose (npga_core/headpose.py)
+    head_pose: bool = True  # move the head as tracked when the sequence has a head pose (npga_core/posing/headpose.py)
 
 
 @dataclass

@@ -1,7 +1,7 @@
 """`PoseEngine`: evaluates the dynamics in a worker process so the UI never waits for them.
 
 Why a process: moderngl holds the GIL during draw calls, and a dynamics thread in the viewer's process was
-starved by it (design/MEASUREMENTS.md). The worker opens the avatar file itself (memory-mapped), computes
+starved by it (measured when the engine was designed). The worker opens the avatar file itself (memory-mapped), computes
 posed clouds, and writes them into one of two shared-memory slots; the viewer uploads from the slot and
 releases it. Requests carry an id; the worker always takes the newest pending request and drops the rest,
 so a fast slider never queues up work.

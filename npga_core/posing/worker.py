@@ -91,7 +91,7 @@ class _Worker:
             torch.set_num_threads(threads)  # the generic path parallelises inside each operation
         else:
             # one chunk per thread at a time, each operation single-threaded: no barrier per operation, which
-            # collapses when a core is shared with the renderer or another process (design/MEASUREMENTS.md)
+            # collapses when a core is shared with the renderer or another process (docs/PERFORMANCE.md)
             torch.set_num_threads(1)
             device = resolve_device(options.device)
             self.poser = FastPoser(self.avatar, chunk=options.chunk, device=device, first_layer=options.first_layer,
