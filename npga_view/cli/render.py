@@ -45,8 +45,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", type=_mode, default="rgb", metavar="MODE",
                    help="rgb; depth (.npy: expected depth per pixel; picture: camera depth per Gaussian); alpha; "
                    "latent (.npy: the composited latent channels; picture: PCA colours of h); " + ", ".join(
-                       INSPECT_MODES[:-3]) + " (colour modes, see npga_core/inspection/inspector.py); points, ellipsoids "
-                   "(geometry views); knn (the kNN graph over the splats)")
+                       INSPECT_MODES[:-3]) + " (colour modes, see npga_core/inspection/inspector.py); points, "
+                   "ellipsoids (geometry views); knn (the kNN graph over the splats)")
     g = p.add_argument_group("inspection modes")
     g.add_argument("--offset-source", default="sum", metavar="NET",
                    help="offset mode: sum (all networks) or one network by name (F, G; an imported avatar's own)")
