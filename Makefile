@@ -2,7 +2,7 @@
 VENV ?= .venv
 STAMP := $(VENV)/.installed
 
-.PHONY: view test install lint bench clean wheel check-wheel
+.PHONY: view test install lint typecheck bench clean wheel check-wheel
 
 view: $(STAMP)
 	$(VENV)/bin/npga-view $(ARGS)
@@ -18,6 +18,10 @@ $(STAMP): pyproject.toml scripts/install.sh
 
 lint: $(STAMP)
 	$(VENV)/bin/ruff check .
+
+# mypy on both packages (settings in pyproject.toml [tool.mypy])
+typecheck: $(STAMP)
+	$(VENV)/bin/python -m mypy npga_core npga_view
 
 # the sdist and the wheel in dist/ (what `pip install .` builds)
 wheel: $(STAMP)

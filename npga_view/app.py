@@ -1,31 +1,29 @@
 """The viewer window: input -> ViewerState -> PoseEngine (worker process) -> SplatRenderer -> imgui panels.
 
-The splat image is redrawn only when something it depends on changed (camera, posed cloud, mode, size);
-otherwise the last one is composited again, so the UI stays fluid while the avatar is still.
+`ViewerApp` builds the parts in dependency order and runs one frame in `step()`; each part reads alone:
+the window and its frame loop (window.py), which camera the view shows (view_camera.py), opening files
+(opening.py), the Inspect panel's cache (inspection_cache.py), the controllers that carry out actions
+(controllers/), the panels (panels/). The splat image is redrawn only when something it depends on changed
+(camera, posed cloud, mode, size); otherwise the last one is composited again, so the UI stays fluid while
+the avatar is still.
 """
 
 from __future__ import annotations
 
-import ctypes
-import math
 import os
 import sys
 import time
-import warnings
 from pathlib import Path
 
 import numpy as np
 
-from npga_core.camera.orbit import OrbitCamera
 from npga_core.errors import AvatarFileError
-from npga_core.files.loading import load_avatar, load_sequence
-from npga_core.files.rig import fit_camera
 from npga_core.files.sequences import ExpressionSequence
-from npga_core.inspection.inspector import InspectInfo, Inspector
 from npga_core.model.avatar import Avatar
 from npga_core.model.gaussians import PosedGaussians
+from npga_core.posing.device import resolve_device
 from npga_core.posing.engine import PoseEngine
-from npga_core.posing.headpose import has_head_pose, head_transform, posed_camera
+from npga_view import opening
 from npga_view.actions import Dispatcher
 from npga_view.comparison.controller import CompareController
 from npga_view.controllers.actions import ActionController
@@ -35,22 +33,20 @@ from npga_view.controllers.posing import PoseController
 from npga_view.controllers.recording import Recorder
 from npga_view.controllers.refining import RefineController
 from npga_view.controllers.sequence_codes import SequenceCodes
-from npga_view.imgui_glfw import glfw, imgui
-from npga_view.keys import all_key_names, bindings_for
+from npga_view.imgui_glfw import imgui
+from npga_view.inspection_cache import InspectionCache
 from npga_view.panels import Panels
 from npga_view.panels.files import FilesPanel, open_action
 from npga_view.panels.info import AppInfo
 from npga_view.rendering.factory import create_renderer
-from npga_view.rendering.gl import release_current_egl, window_context
 from npga_view.rendering.live_detail import LiveDetail
 from npga_view.rendering.refinement import Refiner
 from npga_view.rendering.renderer import NEAR
 from npga_view.rendering.scheduler import DrawScheduler
-from npga_view.state import MAX_SLIDERS, ViewerState
-
-SIDE_PANEL = 400  # logical pixels
-_KEY_NAMES = sorted(all_key_names())  # the keys npga_view/keys.py binds (imgui.Key member names)
-INSPECT_INFO_LIVE_S = 0.5  # seconds between the Inspect panel's figures while the view changes
+from npga_view.state import ViewerState
+from npga_view.view_camera import ViewCamera
+from npga_view.view_input import ViewInput
+from npga_view.window import SIDE_PANEL, Window
 
 
 class ViewerApp:
@@ -59,35 +55,8 @@ class ViewerApp:
     def __init__(self, width: int = 1360, height: int = 900, visible: bool = True, vsync: bool = True,
                  threads: int = 2, remember_recent: bool = True, device: str = "cpu",
                  frame_budget_ms: float | None = 25.0, level_of_detail: bool = True):
-        release_current_egl()  # a current headless context of this process would make the window's GLX fail
-        if not glfw.init():
-            raise RuntimeError("glfw could not initialise (no display? set DISPLAY or use Xvfb)")
-        glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
-        glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)  # macOS gives core contexts only forward-compatible
-        glfw.window_hint(glfw.VISIBLE, visible)
-        glfw.window_hint(glfw.SCALE_TO_MONITOR, True)
-        self.window = None
-        for minor in (3, 1):  # 4.3 core for the compute path, else 4.1 core (macOS) for the 4.1 path (#18)
-            glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 4)
-            glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, minor)
-            with warnings.catch_warnings():
-                warnings.simplefilter("ignore")  # pyGLFW warns about the refused 4.3 request
-                self.window = glfw.create_window(width, height, "npga-view", None, None)
-            if self.window:
-                break
-        if not self.window:
-            glfw.terminate()
-            raise RuntimeError("could not open an OpenGL 4.3 or 4.1 core window")
-        glfw.make_context_current(self.window)
-        glfw.swap_interval(1 if vsync else 0)
-        glfw.set_drop_callback(self.window, self._on_drop)  # before imgui installs (and chains) its callbacks
-        imgui.create_context()
-        io = imgui.get_io()
-        io.set_ini_filename(None)
-        ptr = ctypes.cast(self.window, ctypes.c_void_p).value
-        imgui.backends.glfw_init_for_opengl(ptr, True)
-        imgui.backends.opengl3_init("#version 330")
-        self.ctx = window_context()
+        self.window: Window | None = Window(width, height, visible, vsync, on_drop=self._on_drop)
+        self.ctx = self.window.ctx
         self.renderer = create_renderer(self.ctx, 64, 64)  # the 4.3 path, or the 4.1 one (macOS)
         # live images from a merged level-of-detail cloud (a second renderer, merged in a thread); on while
         # state.merged_live (set each frame in _draw_splats)
@@ -103,32 +72,28 @@ class ViewerApp:
         self._was_quiet = False
         self.state = ViewerState()
         self.state.merged_live = level_of_detail
-        self.info = AppInfo(renderer_path=self.renderer.path)
-        # the screen-space CNN (on the dynamics' GPU when one is asked for) and latent views, on settled images
-        cnn_device = device if device.startswith("cuda") else "cpu"
-        self.refining = RefineController(Refiner(self.ctx, cnn_device), self.renderer, self.draws, self.state,
-                                         self.info)
-        # the Compare panel's views: the avatar against a capture or a second avatar (npga_view/comparison)
-        self.compare = CompareController(self.ctx, cnn_device)
-        self.avatar_version = 0  # incremented when the avatar or its canonical cloud changes (edits)
+        self.info = AppInfo(renderer_path=self.renderer.path)  # what the panels show: a snapshot, each frame
+        # the screen-space CNN (on the device asked for, as the dynamics) and latent views, on settled images
+        self.refining = RefineController(Refiner(self.ctx, resolve_device(device)), self.renderer, self.draws,
+                                         self.state, self.info)
+        self.compare = CompareController(self.ctx, str(resolve_device(device)))  # the Compare panel's views
         self.threads = threads
         self.device = device  # where the worker runs the dynamics ("cpu", "cuda", "mps", "auto")
         self.remember_recent = remember_recent
         if remember_recent:
             self.state.load_recent()
+        # the open files (opening.py sets them)
         self.avatar: Avatar | None = None
         self.engine: PoseEngine | None = None
         self.sequence: ExpressionSequence | None = None
-        self._colouring = None  # legend of the current Inspect colour mode
-        self._inspect_info_due = False
-        self._inspect_info_t = -math.inf  # when the Inspect panel's figures were last computed
+        self._posed: PosedGaussians | None = None  # a copy of the cloud on screen (before highlighting)
+        self.inspection = InspectionCache()
         self._last_t = time.perf_counter()
         self._fps_t: list[float] = []
         self.frames = 0
         self.should_close = False
-        self._posed: PosedGaussians | None = None  # a copy of the cloud on screen (before highlighting)
         # controllers, each built after what it is handed
-        self.edits = EditController(self, self.code_for_keyframe)
+        self.edits = EditController(self)
         self.sequence_codes = SequenceCodes(self.state, lambda: self.sequence)
         self.bakes = BakeController(self.state, lambda: self.engine, self.sequence_codes)
         self.poses = PoseController(self, self.sequence_codes, self.bakes, keyframe_code=self.edits.keyframe_code,
@@ -136,112 +101,56 @@ class ViewerApp:
         self.recorder = Recorder(lambda: self.read_window(viewport_only=True))
         self.actions = ActionController(self, self.poses, self.bakes, self._toggle_recording)
         self.actions.load_presets()
+        self.view_camera = ViewCamera(self.state, self._viewport, self.edits, lambda: self.actions.rig,
+                                      lambda: self.sequence, self.poses.frame_on_screen)
+        self.input = ViewInput(self.state, self.window.scale, self._viewport, self.edits, self.view_camera,
+                               self.pick, self.compare.drag_divider)
         # every action type -> its controller's handler (npga_view/actions.py); strict in tests
         self.dispatcher = Dispatcher()
         self.dispatcher.register(self.actions.handlers())
         self.dispatcher.register(self.edits.handlers())
         self.dispatcher.register(self.compare.handlers())
         self.panels = Panels(files=FilesPanel(browse=os.getcwd()))
-        self.inspector: Inspector | None = None
-        self._inspect_key: tuple | None = None
-        self._click_pos: tuple[float, float] | None = None
         self._publish_info()
 
-    # ------------------------------------------------------------------------------------------ files
+    # ------------------------------------------------------------------------------------ open files
     def open_avatar(self, path: str) -> bool:
         """Load an avatar (errors go to the UI); starts the pose worker for animatable ones."""
-        try:
-            avatar = load_avatar(path)
-        except AvatarFileError as e:
-            self.state.report(str(e))
-            return False
-        self.adopt_avatar(avatar, path)
-        self.edits.start(avatar, avatar.source)
-        self._add_recent(path)
-        glfw.set_window_title(self.window, f"npga-view - {Path(path).name}")
-        return True
+        return opening.open_avatar(self, path)
 
     def adopt_avatar(self, avatar: Avatar, path: str) -> None:
-        """Show `avatar` (loaded from `path`): worker, sliders, camera; sequences that no longer fit close."""
-        if self.engine is not None:
-            self.engine.close()
-            self.engine = None
-        self.avatar = avatar
-        self.avatar_version += 1
-        self.state.avatar_path = path if path == "demo" else str(Path(path).resolve())
-        ex = avatar.expression
-        k = ex.n_components if ex is not None else 0
-        self.state.sliders = np.zeros(k, np.float32)
-        if ex is not None and "neutral" in ex.named:  # open at the avatar's neutral face, not the mean code
-            self.state.sliders = ex.to_sliders(ex.named["neutral"]).astype(np.float32)
-        self.state.n_sliders = min(max(self.state.n_sliders, 1), max(1, min(k, MAX_SLIDERS)))
-        self._posed = None
-        self.poses.reset()
-        self.inspector = Inspector(avatar)
-        self.refining.set_avatar(avatar)
-        self.lod.reset()
-        self.state.inspect.picked = None
-        self.poses.first_pose_shown = False
-        if avatar.dynamics is not None and avatar.source:
-            self._start_engine(avatar.source)
-            # first pixels at once: the canonical cloud, labelled, until the worker's first pose arrives
-            if not self.legacy:
-                self.poses.canonical = True
-                self.show(avatar.cloud.posed_static())
-        else:
-            self.show(avatar.pose())
-            self.poses.first_pose_shown = True
-        if self.sequence is not None and self.sequence.dim != avatar.code_dim:
-            self.state.report(f"{self.state.sequence_path}: codes have {self.sequence.dim} dims, the avatar expects "
-                              f"{avatar.code_dim}; sequence closed")
-            self._close_sequence()
-        self.frame_avatar(reset=True)
+        """Show `avatar` (loaded from `path`): worker, sliders, camera."""
+        opening.adopt_avatar(self, avatar, path)
 
-    def _start_engine(self, path: str) -> None:
-        if self.engine is not None:
-            self.engine.close()
-        a = self.avatar
-        self.engine = PoseEngine(path, len(a), a.cloud.sh.shape[1], a.cloud.latent_dim, threads=self.threads,
-                                 device=self.device)
-        self.bakes.forget()
-        self.poses.engine_restarted()
+    def open_sequence(self, path: str) -> bool:
+        """Load a sequence; refused (with both dimensions) if it does not fit the avatar."""
+        return opening.open_sequence(self, path)
 
+    def load_session(self, path: str) -> None:
+        """Restore camera, sliders, modes and open files from a session file."""
+        self.actions.load_session(path)
+
+    def _on_drop(self, window, paths) -> None:
+        self.state.actions.extend(open_action(p) for p in paths)
+
+    # --------------------------------------------------------------------------- the cloud on screen
     def show(self, posed: PosedGaussians) -> None:
         """Keep `posed` as the cloud on screen; upload it as the Inspect settings colour it, with the edit
         highlights on top."""
         self._posed = posed
-        settings, session = self.state.inspect, self.edits.session
+        session = self.edits.session
         selection = session.selection if session is not None and len(session) == len(posed) else None
-        self._inspect_key = (settings.key(), self._inspect_camera_key())
-        frame = None
-        if self.inspector is not None and len(posed) == len(self.avatar):
-            try:
-                frame = self.inspector.frame(settings, posed, self.poses.shown_code, self.current_camera(), selection)
-            except ValueError as e:
-                self.info.inspect = self.info.inspect or InspectInfo()
-                self.info.inspect.error = str(e)
+        frame = self.inspection.frame(self.state.inspect, posed, self.poses.shown_code, self.current_camera,
+                                      selection)
         if frame is None:
             uploaded = highlight(posed, session)
             self.renderer.set_gaussians(uploaded)
             self.renderer.clear_lines()
-            self._colouring = None
         else:
             uploaded = frame.posed = highlight(frame.posed, session)
             self.renderer.show(frame)
-            self._colouring = frame.colouring
         self.content_version += 1
         self.lod.submit(self.content_version, uploaded)
-        self._inspect_info_due = True
-
-    def _inspect_camera_key(self) -> tuple | None:
-        if self.inspector is None or not Inspector.camera_dependent(self.state.inspect):
-            return None
-        return (self.current_camera().world_to_camera.tobytes(),)
-
-    def _refresh_inspect(self) -> None:
-        """Rebuild the frame when the Inspect settings (or, for depth colouring, the camera) changed."""
-        if self._posed is not None and (self.state.inspect.key(), self._inspect_camera_key()) != self._inspect_key:
-            self.show(self._posed)
 
     def reupload(self) -> None:
         """Upload the cloud on screen again (after a selection, hide or preview change)."""
@@ -250,16 +159,17 @@ class ViewerApp:
 
     def cloud_changed(self, worker_path: str | None) -> None:
         """The canonical cloud was edited: re-pose it (in the worker, from `worker_path`, if animatable)."""
-        self.avatar_version += 1
-        self.inspector = Inspector(self.avatar)
-        self.refining.set_avatar(self.avatar)
+        avatar = self.avatar
+        assert avatar is not None
+        self.inspection.set_avatar(avatar)
+        self.refining.set_avatar(avatar)
         self.lod.reset()
-        if self.state.inspect.picked is not None and self.state.inspect.picked >= len(self.avatar):
+        if self.state.inspect.picked is not None and self.state.inspect.picked >= len(avatar):
             self.state.inspect.picked = None
         if worker_path is None:
-            self.show(self.avatar.pose())
+            self.show(avatar.pose())
         else:
-            self._start_engine(worker_path)
+            opening.start_engine(self, worker_path)
 
     def shown_posed(self) -> PosedGaussians | None:
         """The posed cloud on screen, before highlighting (None until the first pose)."""
@@ -272,7 +182,8 @@ class ViewerApp:
 
     def shown_means(self) -> np.ndarray:
         """Centres of the Gaussians on screen (canonical ones until the first pose, or after a deletion)."""
-        if self._posed is not None and self.avatar is not None and len(self._posed) == len(self.avatar):
+        assert self.avatar is not None
+        if self._posed is not None and len(self._posed) == len(self.avatar):
             return self._posed.means
         return np.asarray(self.avatar.cloud.means)
 
@@ -281,149 +192,33 @@ class ViewerApp:
         return None if code is None else code.copy()
 
     def code_for_keyframe(self, source: str, preset: str | None) -> np.ndarray:
-        """The code a new expression keyframe takes: from the sliders, the sequence frame or a preset."""
-        ex = self.avatar.expression if self.avatar is not None else None
-        if ex is None:
-            raise ValueError("this avatar has no expression space")
-        if source == "frame":
-            if self.poses.codes is None:
-                raise ValueError("no sequence frame: open a sequence first")
-            return self.poses.codes[self.poses.frame].copy()
-        if source == "preset":
-            if preset in ex.named:
-                return ex.named[preset].copy()
-            if preset in self.state.presets:
-                return np.asarray(self.state.presets[preset], np.float32)
-            raise ValueError(f"no preset named {preset!r}")
-        return self.poses.slider_code()
+        return self.poses.code_for_keyframe(source, preset)
 
-    def open_sequence(self, path: str) -> bool:
-        """Load a sequence; refused (with both dimensions) if it does not fit the avatar."""
-        try:
-            seq = load_sequence(path)
-            if self.avatar is None or self.avatar.code_dim == 0:
-                raise AvatarFileError(path, "open an animatable avatar first (this one has no dynamics)")
-            seq.check_dim(self.avatar.code_dim, path)
-        except AvatarFileError as e:
-            self.state.report(str(e))
-            return False
-        self.sequence = seq
-        self.poses.sequence_opened(len(seq), seq.fps)
-        self.state.sequence_path = str(Path(path).resolve())
-        self.state.timeline.time_s = 0.0
-        self.state.follow_sequence = True
-        self._add_recent(path)
-        return True
-
-    def _close_sequence(self) -> None:
-        self.sequence = None
-        self.poses.sequence_closed()
-        self.state.sequence_path = None
-
-    def _add_recent(self, path: str) -> None:
-        self.state.add_recent(path)
-        if self.remember_recent:
-            self.state.save_recent()
-
-    def _on_drop(self, window, paths) -> None:
-        self.state.actions.extend(open_action(p) for p in paths)
-
-    # ----------------------------------------------------------------------------------------- camera
-    def frame_avatar(self, reset: bool = False) -> None:
-        if self.avatar is None or len(self.avatar) == 0:
-            return
-        cam = self.state.camera
-        if reset:
-            self.state.camera = cam = OrbitCamera(fov_y=cam.fov_y or 20.0)
-        w, h = self._viewport()[2:]
-        cam.frame(np.asarray(self.avatar.cloud.means), aspect=w / max(h, 1))
-
+    # ------------------------------------------------------------------------------------------ camera
     def _viewport(self) -> tuple[int, int, int, int]:
         """(x, y, w, h) of the splat view in framebuffer pixels (right of the side panel)."""
-        fw, fh = glfw.get_framebuffer_size(self.window)
-        ww, _ = glfw.get_window_size(self.window)
-        scale = fw / max(ww, 1)
-        side = min(int(SIDE_PANEL * scale), fw - 16)
-        return side, 0, max(1, fw - side), max(1, fh)
+        assert self.window is not None
+        return self.window.viewport()
 
     def current_camera(self, ignore_keyframes: bool = False):
-        """The splat view's camera: keyframed, a rig camera or the orbit camera, moved by the sequence's head
-        pose (of the frame on screen) while it is followed."""
-        x, y, w, h = self._viewport()
-        kf = self.edits
-        rig = self.state.rig_index >= 0 and bool(self.actions.rig)
-        if not ignore_keyframes and kf.kf_playing and kf.keyframes.camera:
-            cam = kf.keyframes.camera_at(kf.kf_time, w, h)
-        elif rig:
-            names = list(self.actions.rig)
-            cam = fit_camera(self.actions.rig[names[self.state.rig_index % len(names)]], w, h)
-        else:
-            cam = self.state.camera.camera(w, h)
-        seq = self.sequence
-        if seq is not None and self.state.follow_sequence and self.state.timeline.head_pose and has_head_pose(seq):
-            shown = self.poses.shown_frame
-            frame = shown if shown is not None else self.poses.frame
-            cam = posed_camera(cam, head_transform(seq, frame, relative=not rig))
-        return cam
+        """The splat view's camera (view_camera.py)."""
+        return self.view_camera.current(ignore_keyframes)
 
-    def _mouse(self) -> None:
-        io = imgui.get_io()
-        if io.want_capture_mouse:
-            return
-        fw, _ = glfw.get_framebuffer_size(self.window)
-        ww, _ = glfw.get_window_size(self.window)
-        scale = fw / max(ww, 1)
-        x0 = self._viewport()[0] / scale
-        if io.mouse_pos.x < x0 and not self.edits.dragging:
-            return
-        if self.edits.mouse((x0, 0.0), scale):
-            return
-        if imgui.is_mouse_down(0) and self.compare.drag_divider(io.mouse_pos.x * scale):
-            return  # the wipe's divider follows the mouse
-        if self.state.inspect.pick_on_click:
-            if imgui.is_mouse_clicked(0):
-                self._click_pos = (io.mouse_pos.x, io.mouse_pos.y)
-            elif imgui.is_mouse_released(0) and self._click_pos is not None:
-                cx, cy = self._click_pos
-                self._click_pos = None
-                if abs(io.mouse_pos.x - cx) + abs(io.mouse_pos.y - cy) < 4:
-                    self.pick((cx - x0) * scale, cy * scale)
-        cam = self.state.camera
-        d = io.mouse_delta
-        if (d.x or d.y) and self.state.rig_index < 0:
-            if imgui.is_mouse_down(0) and io.key_shift:
-                cam.roll += d.x * 0.3
-            elif imgui.is_mouse_down(0):
-                cam.orbit(-d.x * 0.3, d.y * 0.3)
-            elif imgui.is_mouse_down(1) or imgui.is_mouse_down(2):
-                cam.pan(d.x * scale, d.y * scale, self._viewport()[3])
-        if io.mouse_wheel:
-            cam.zoom(io.mouse_wheel)
+    def frame_avatar(self, reset: bool = False) -> None:
+        self.view_camera.frame_avatar(self.avatar, reset)
 
-    def _keys(self) -> None:
-        """Keys pressed this frame -> actions, by the table in npga_view/keys.py."""
-        io = imgui.get_io()
-        if io.want_capture_keyboard:
-            return
-        pressed = [name for name in _KEY_NAMES if imgui.is_key_pressed(getattr(imgui.Key, name))]
-        if not pressed:
-            return
-        held = frozenset(m for m, on in (("ctrl", io.key_ctrl), ("shift", io.key_shift), ("alt", io.key_alt)) if on)
-        self.state.actions.extend(b.action for b in bindings_for(pressed, held))
-
-    # ---------------------------------------------------------------------------------------- actions
-    def _run_actions(self) -> None:
-        actions, self.state.actions = self.state.actions, []
-        self.dispatcher.run_all(actions, self.state.report, expected=(AvatarFileError, ValueError, OSError))
-
-    # --------------------------------------------------------------------------------------- drawing
     def pick(self, x: float, y: float) -> int | None:
         """Pick the Gaussian at view pixel (x, y) (top-left origin) for the inspector."""
         idx = self.renderer.pick(self.current_camera(), x, y)
         self.state.inspect.picked = idx
-        self._inspect_info_due = True
+        self.inspection.due = True
         return idx
 
+    def _run_actions(self) -> None:
+        actions, self.state.actions = self.state.actions, []
+        self.dispatcher.run_all(actions, self.state.report, expected=(AvatarFileError, ValueError, OSError))
+
+    # ------------------------------------------------------------------------------------------ drawing
     @property
     def _dirty(self) -> bool:
         """The current view is not yet on screen at full resolution (an image is pending or being drawn)."""
@@ -448,68 +243,49 @@ class ViewerApp:
         if self.lod.error:  # a merge failed: say so and draw every Gaussian from now on
             self.state.report(self.lod.error)
             self.lod.error, self.state.merged_live = None, False
-        exact = self.poses.exact
         interacting = self._interacting()
-        if self.draws.frame(cam, self.state.mode, self.content_version, interacting, exact_content=exact):
+        if self.draws.frame(cam, self.state.mode, self.content_version, interacting, exact_content=self.poses.exact):
             t = self.draws.shown_renderer.last_timings
             info.timings.update({k: t[k] for k in ("sort", "upload", "preprocess", "draw") if k in t})
             info.merged_splats = self.draws.shown_merged
             if not info.merged_splats:  # (a merged cloud's count is not the number of the avatar's in view)
                 info.gaussians_drawn = int(t.get("visible", 0))
-            self._inspect_info_due = True
+            self.inspection.due = True
             self.poses.presented(self.draws.shown_version)
         info.draw_scale, info.image_status = self.draws.scale, self.draws.status
         info.image_ms, info.draw_progress = self.draws.last_image_ms, self.draws.progress
-        now = time.perf_counter()
-        # the Inspect panel's counts and histograms (~25 ms for the demo): at most twice a second while the view
-        # changes (playback brings a pose every frame), at once when it has settled
-        throttled = interacting and now - self._inspect_info_t < INSPECT_INFO_LIVE_S
-        if self._inspect_info_due and not throttled and self.inspector is not None and self._posed is not None \
-                and len(self._posed) == len(self.avatar):
-            self._inspect_info_due = False
-            self._inspect_info_t = now
-            err = self.info.inspect.error if self.info.inspect is not None else None
-            self.info.inspect = self.inspector.info(self.state.inspect, self._posed, self.poses.shown_code,
-                                                    self._colouring, cam, self.renderer.drawn_mask(), NEAR)
-            self.info.inspect.error = self.info.inspect.error or err
-        x, y, w, h = self._viewport()
-        if self.compare.show(self.avatar, self.avatar_version, self.poses.shown_code, cam, self.state.background,
-                             self.draws.budget_ms * 0.5, self.ctx.screen, (x, y, w, h), self.state.report):
-            return  # the Compare panel's comparison replaces the splat view
-        if self.refining.present(cam, self.ctx.screen, (x, y, w, h)):
+        self.inspection.update_figures(self.state.inspect, self._posed, self.poses.shown_code, cam,
+                                       self.renderer.drawn_mask, NEAR, interacting, time.perf_counter())
+        viewport = self._viewport()
+        if self.compare.show(self.avatar, self.poses.shown_code, cam, self.state.background,  # replaces the splats
+                             self.draws.budget_ms * 0.5, self.ctx.screen, viewport, self.state.report):
+            return
+        if self.refining.present(cam, self.ctx.screen, viewport):
             return
         bg = self.state.background if self.state.mode == "rgb" else (0.0, 0.0, 0.0)
-        self.draws.present(self.ctx.screen, bg, flip_y=True, viewport=(x, y, w, h))
+        self.draws.present(self.ctx.screen, bg, flip_y=True, viewport=viewport)
 
     def _draw_ui(self) -> None:
-        fw, fh = glfw.get_window_size(self.window)
+        assert self.window is not None
+        _, fh = self.window.logical_size()
         imgui.set_next_window_pos(imgui.ImVec2(0, 0))
         imgui.set_next_window_size(imgui.ImVec2(SIDE_PANEL, fh))
         flags = imgui.WindowFlags_.no_move | imgui.WindowFlags_.no_resize | imgui.WindowFlags_.no_collapse
         imgui.begin("npga-view", None, flags)
-        if self.state.errors:
-            for msg in self.state.errors:
-                imgui.text_colored(imgui.ImVec4(1.0, 0.45, 0.4, 1.0), "")
-                imgui.same_line()
-                imgui.push_text_wrap_pos(0)
-                imgui.text_colored(imgui.ImVec4(1.0, 0.45, 0.4, 1.0), msg)
-                imgui.pop_text_wrap_pos()
-            if imgui.button("Dismiss"):
-                self.state.errors = []
-            imgui.separator()
         for panel in self.panels.side:
             panel.draw(self.state, self.info)
         imgui.end()
 
     def _publish_info(self) -> None:
-        """The display snapshot the panels read this frame, copied from the controllers' own state."""
+        """The display snapshot the panels read, copied from the controllers' own state."""
         info = self.info
         info.avatar, info.sequence = self.avatar, self.sequence
         info.rig_names = list(self.actions.rig)
-        info.recording = self.recorder.recording
+        info.cnn_device = str(self.refining.refiner.device)
+        info.recording, info.compare = self.recorder.recording, self.compare.info()
         info.bake, info.bake_state = self.bakes.status, self.bakes.state()
+        info.inspect = self.inspection.figures
         self.poses.publish(info)
-        info.compare = self.compare.info()
         self.edits.publish(info)
 
     def _quiet(self) -> bool:
@@ -524,50 +300,40 @@ class ViewerApp:
         input for up to `idle_wait_s` (worker results and threads are picked up at that rate) instead of
         spinning: an idle window on llvmpipe otherwise redraws ~80 times a second on the cores the pose worker
         and the CNN need."""
-        if self._was_quiet and self.idle_wait_s > 0:
-            glfw.wait_events_timeout(self.idle_wait_s)
-        else:
-            glfw.poll_events()
+        window = self.window
+        assert window is not None
+        window.begin_frame(self.idle_wait_s if self._was_quiet else 0.0)
         now = time.perf_counter()
         dt, self._last_t = now - self._last_t, now
         self._fps_t = [t for t in self._fps_t if now - t < 1.0] + [now]
         self.info.fps = len(self._fps_t) / max(1e-6, now - self._fps_t[0]) if len(self._fps_t) > 1 else 0.0
-        imgui.backends.opengl3_new_frame()
-        imgui.backends.glfw_new_frame()
-        imgui.new_frame()
-        self._mouse()
-        self._keys()
+        self.input.mouse()
+        self.input.keys()
         self._draw_ui()
         self._run_actions()
         self.edits.after_actions()
         self.edits.tick(dt)
         self.poses.update(dt)
-        self._publish_info()
-        self._refresh_inspect()
-        self.ctx.screen.use()
-        fw, fh = glfw.get_framebuffer_size(self.window)
-        self.ctx.viewport = (0, 0, fw, fh)
-        self.ctx.clear(0.08, 0.08, 0.09, 1.0)
+        if self._posed is not None and self.inspection.stale(self.state.inspect, self.current_camera):
+            self.show(self._posed)  # the Inspect settings (or, for depth colouring, the camera) changed
+        window.clear()
         self._draw_splats()
+        self._publish_info()
         if self.state.show_stats:
             for panel in self.panels.overlays:  # after drawing, so that they report this frame's image
                 panel.draw(self.state, self.info)
         self.recorder.frame()
-        imgui.render()
-        imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
-        glfw.swap_buffers(self.window)
+        window.end_frame()
         self.frames += 1
         self._was_quiet = self._quiet()
-        if glfw.window_should_close(self.window):
+        if window.close_requested():
             self.should_close = True
 
     # ------------------------------------------------------------------------------------ snapshots
     def read_window(self, viewport_only: bool = False) -> np.ndarray:
         """RGB uint8 pixels of the back buffer as last drawn (top row first)."""
-        fw, fh = glfw.get_framebuffer_size(self.window)
-        vp = self._viewport() if viewport_only else (0, 0, fw, fh)
-        data = self.ctx.screen.read(viewport=vp, components=3, alignment=1)
-        return np.frombuffer(data, np.uint8).reshape(vp[3], vp[2], 3)[::-1].copy()
+        assert self.window is not None
+        return self.window.read(viewport_only)
 
     def screenshot(self, path: str, viewport_only: bool = False) -> str:
         """Save the window (panels included) or only the splat view as PNG."""
@@ -579,10 +345,6 @@ class ViewerApp:
             raise OSError(f"{path}: could not write the PNG")
         self.info.last_screenshot = str(path)  # (display only)
         return str(path)
-
-    def load_session(self, path: str) -> None:
-        """Restore camera, sliders, modes and open files from a session file."""
-        self.actions.load_session(path)
 
     def _toggle_recording(self) -> None:
         try:
@@ -633,9 +395,5 @@ class ViewerApp:
             self.lod.close()
             self.refining.release()
             self.compare.release()
-            imgui.backends.opengl3_shutdown()
-            imgui.backends.glfw_shutdown()
-            imgui.destroy_context()
-            glfw.destroy_window(self.window)
+            self.window.close()
             self.window = None
-            glfw.terminate()

@@ -40,6 +40,36 @@ def _session_dict(v: object, what: str) -> dict:
     return v
 
 
+def _session_camera(value: object) -> OrbitCamera:
+    """The orbit camera of a session (its numbers checked)."""
+    cam = _session_dict(value, "camera")
+    target = cam.get("target", [0.0, 0.0, 0.0])
+    if not (isinstance(target, list) and len(target) == 3):
+        raise ValueError("camera.target must be 3 numbers")
+    for x in target:
+        _session_number(x, "camera.target")
+    for k, (lo, hi) in {"yaw": (-1e6, 1e6), "pitch": (-1e6, 1e6), "roll": (-1e6, 1e6), "distance": (1e-6, 1e6),
+                        "fov_y": (1.0, 170.0)}.items():
+        if k in cam:
+            _session_number(cam[k], f"camera.{k}", lo, hi)
+    return OrbitCamera.from_dict(cam)
+
+
+def _apply_timeline(timeline: Timeline, value: object) -> None:
+    """Set `timeline`'s fields from a session's (each of its field's type; "playing" is not restored)."""
+    for k, v in _session_dict(value, "timeline").items():
+        if k in Timeline.__dataclass_fields__ and k != "playing":
+            current = getattr(timeline, k)
+            if isinstance(current, bool):
+                v = bool(v)
+            elif isinstance(current, float):
+                v = _session_number(v, f"timeline.{k}")
+            elif not isinstance(v, str) or len(v) > 64:
+                raise ValueError(f"timeline.{k} must be a short string")
+            setattr(timeline, k, v)
+    check_playback(timeline)  # settings smooth() or the bake would refuse later, in the frame loop
+
+
 def config_dir() -> Path:
     """Per-user settings folder (recent files, presets): the platform's own (`npga_core.files.places`)."""
     return user_config_dir()
@@ -61,7 +91,7 @@ class Timeline:
     baked: bool = False  # play from the bake of the sequence (when one is of these codes), else live
     bake_budget_mb: float = 1024.0  # memory of a bake; longer sequences store every k-th frame and interpolate
     bake_cache: bool = True  # keep the bake in a cache file next to the avatar, reused while nothing changed
-    head_pose: bool = True  # move the head as tracked when the sequence has a head pose (npga_core/headpose.py)
+    head_pose: bool = True  # move the head as tracked when the sequence has a head pose (npga_core/posing/headpose.py)
 
 
 @dataclass
@@ -126,17 +156,7 @@ class ViewerState:
             if v is not None and not (isinstance(v, str) and 0 < len(v) < 4096 and "\0" not in v):
                 raise ValueError(f"'{k}' must be a file path or null")
         self.avatar_path, self.sequence_path = paths["avatar"], paths["sequence"]
-        cam = _session_dict(d.get("camera", {}), "camera")
-        target = cam.get("target", [0.0, 0.0, 0.0])
-        if not (isinstance(target, list) and len(target) == 3):
-            raise ValueError("camera.target must be 3 numbers")
-        for x in target:
-            _session_number(x, "camera.target")
-        for k, (lo, hi) in {"yaw": (-1e6, 1e6), "pitch": (-1e6, 1e6), "roll": (-1e6, 1e6), "distance": (1e-6, 1e6),
-                            "fov_y": (1.0, 170.0)}.items():
-            if k in cam:
-                _session_number(cam[k], f"camera.{k}", lo, hi)
-        self.camera = OrbitCamera.from_dict(cam)
+        self.camera = _session_camera(d.get("camera", {}))
         mode = d.get("mode", "rgb")
         self.mode = mode if mode in RENDER_MODES else "rgb"
         bg = d.get("background", [0, 0, 0])
@@ -154,17 +174,7 @@ class ViewerState:
         self.sliders = sl
         self.n_sliders = int(np.clip(_session_number(d.get("n_sliders", 10), "n_sliders"), 1, MAX_SLIDERS))
         self.follow_sequence = bool(d.get("follow_sequence", True))
-        for k, v in _session_dict(d.get("timeline") or {}, "timeline").items():
-            if k in Timeline.__dataclass_fields__ and k != "playing":
-                current = getattr(self.timeline, k)
-                if isinstance(current, bool):
-                    v = bool(v)
-                elif isinstance(current, float):
-                    v = _session_number(v, f"timeline.{k}")
-                elif not isinstance(v, str) or len(v) > 64:
-                    raise ValueError(f"timeline.{k} must be a short string")
-                setattr(self.timeline, k, v)
-        check_playback(self.timeline)  # settings smooth() or the bake would refuse later, in the frame loop
+        _apply_timeline(self.timeline, d.get("timeline") or {})
         self.rig_path = paths["rig"]
         self.rig_index = int(_session_number(d.get("rig_index", -1), "rig_index", -1, 4096))
 

@@ -112,11 +112,16 @@ def test_controllers_do_not_import_the_app(graph):
             assert "npga_view.app" not in deps, m
 
 
+#: TEMPORARY (#26): modules being split in their owners' branches; remove each entry when that branch is merged
+OVER_600 = {"npga_view/rendering/renderer.py": 620, "npga_view/cli/bench.py": 620}
+
+
 def test_modules_stay_small():
     for pkg in PACKAGES:
         for p in (ROOT / pkg).rglob("*.py"):
             n = len(p.read_text().splitlines())
-            assert n <= 700, f"{p.relative_to(ROOT)} has {n} lines"
+            name = p.relative_to(ROOT).as_posix()
+            assert n <= OVER_600.get(name, 600), f"{name} has {n} lines (at most 600: split it by meaning)"
 
 
 def test_public_names_import_from_npga_core():

@@ -116,10 +116,64 @@ def run(args) -> int:
         return 2
 
 
+def _choose_views(args, capture, problems: list[str], notes: list[str]) -> tuple[list[tuple], list, str]:
+    """The (frame, camera) views to score, the frames, and the mask kind, as --frames, --cameras, --protocol and
+    --mask say (problems and notes collected for the report)."""
+    frames = capture.frames if args.frames is None else sorted(set(capture.frames) & _int_list(args.frames))
+    cameras = capture.cameras
+    if args.cameras:
+        wanted = [c.strip() for c in args.cameras.split(",") if c.strip()]
+        problems += [f"{args.capture}: camera {c} is not in the capture" for c in wanted if c not in cameras]
+        cameras = [c for c in cameras if c in wanted]
+    if args.protocol == "npga":
+        held = frontal_camera(capture)
+        cameras = [held]
+        notes.append(f"protocol npga: {NPGA_SIZE[0]}x{NPGA_SIZE[1]} images (captures downsampled to cover, "
+                     f"centre-cropped), held-out frontal camera {held} only")
+    from npga_core.evaluation.views import resolve_mask_kind
+    mask_kind = resolve_mask_kind(capture, args.mask)
+    if mask_kind == "face" and not capture.has_face_masks:
+        raise EvaluateError(f"{args.capture}: --mask face, but the capture has no face masks")
+    if args.protocol == "npga" and mask_kind != "face":
+        notes.append("NO FACE MASKS in this capture: scored inside the alpha matte (neck and torso included), "
+                     "so the numbers are not comparable with the paper's Table 1")
+    views = [(f, c) for f in frames for c in cameras if (f, c) in capture.views]
+    if not views:
+        raise EvaluateError(f"{args.capture}: no views left after --frames/--cameras")
+    return views, frames, mask_kind
+
+
+def _load_view(args, capture, v, mask_kind: str, problems: list[str]):
+    """(camera, image, mask) of a capture view as scored (the npga protocol's crop applied), or None when the
+    view cannot be used (the problem is recorded)."""
+    from npga_core.evaluation.views import load_view
+    try:
+        loaded = load_view(capture, v, mask_kind)
+    except AvatarFileError as e:
+        problems.append(str(e))
+        return None
+    cam, image, mask = loaded.camera, loaded.image, loaded.mask
+    if args.protocol == "npga":
+        cam, image, mask = protocol_view(cam, image, mask)
+    return cam, image, mask
+
+
+def _render_view(renderer, avatar, cam, background, use_cnn: bool, shape: tuple[int, ...]) -> np.ndarray:
+    """The avatar's image for `cam` (through its CNN when `use_cnn`), at the capture image's `shape`."""
+    render = renderer.render(cam, background)
+    if use_cnn:
+        from npga_view.rendering.refinement import refine_frame
+        render = refine_frame(renderer, avatar.cnn, cam, background, rgb=render)
+        if render.shape[:2] != shape[:2]:  # a CNN that upsamples: area-filtered to the capture's size
+            import cv2
+            render = cv2.resize(render, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)
+    return np.clip(render, 0.0, 1.0)
+
+
 def _evaluate(args) -> int:
     from npga_core.evaluation.capture import load_capture
     from npga_core.evaluation.metrics import Lpips, lpips_status, score
-    from npga_core.evaluation.views import frame_code, load_view, resolve_mask_kind
+    from npga_core.evaluation.views import frame_code
     from npga_core.files.loading import load_avatar, load_sequence
     from npga_view.cli.evaluate_report import write_report
     from npga_view.cli.render import parse_background
@@ -134,29 +188,8 @@ def _evaluate(args) -> int:
     if args.sequence is not None:
         seq = load_sequence(args.sequence)
         seq.check_dim(avatar.code_dim, args.sequence)
-    frames = capture.frames if args.frames is None else sorted(set(capture.frames) & _int_list(args.frames))
-    cameras = capture.cameras
-    if args.cameras:
-        wanted = [c.strip() for c in args.cameras.split(",") if c.strip()]
-        for c in wanted:
-            if c not in cameras:
-                problems.append(f"{args.capture}: camera {c} is not in the capture")
-        cameras = [c for c in cameras if c in wanted]
     notes: list[str] = []
-    if args.protocol == "npga":
-        held = frontal_camera(capture)
-        cameras = [held]
-        notes.append(f"protocol npga: {NPGA_SIZE[0]}x{NPGA_SIZE[1]} images (captures downsampled to cover, "
-                     f"centre-cropped), held-out frontal camera {held} only")
-    mask_kind = resolve_mask_kind(capture, args.mask)
-    if mask_kind == "face" and not capture.has_face_masks:
-        raise EvaluateError(f"{args.capture}: --mask face, but the capture has no face masks")
-    if args.protocol == "npga" and mask_kind != "face":
-        notes.append("NO FACE MASKS in this capture: scored inside the alpha matte (neck and torso included), "
-                     "so the numbers are not comparable with the paper's Table 1")
-    views = [(f, c) for f in frames for c in cameras if (f, c) in capture.views]
-    if not views:
-        raise EvaluateError(f"{args.capture}: no views left after --frames/--cameras")
+    views, frames, mask_kind = _choose_views(args, capture, problems, notes)
     ok, lp_note = lpips_status()
     notes.append(lp_note)
     lp = Lpips() if ok else None
@@ -177,14 +210,10 @@ def _evaluate(args) -> int:
     posed_frame = None
     t0 = time.perf_counter()
     for i, (f, c) in enumerate(views):
-        try:
-            view = load_view(capture, capture.views[(f, c)], mask_kind)
-        except AvatarFileError as e:
-            problems.append(str(e))
+        loaded = _load_view(args, capture, capture.views[(f, c)], mask_kind, problems)
+        if loaded is None:
             continue
-        cam, image, mask = view.camera, view.image, view.mask
-        if args.protocol == "npga":
-            cam, image, mask = protocol_view(cam, image, mask)
+        cam, image, mask = loaded
         if posed_frame != f:
             found, code = frame_code(seq, frames, f)
             if not found:
@@ -192,14 +221,7 @@ def _evaluate(args) -> int:
                 continue
             renderer.set_gaussians(avatar.pose(code))
             posed_frame = f
-        render = renderer.render(cam, background)
-        if use_cnn:
-            from npga_view.rendering.refinement import refine_frame
-            render = refine_frame(renderer, avatar.cnn, cam, background, rgb=render)
-            if render.shape[:2] != image.shape[:2]:  # a CNN that upsamples: area-filtered to the capture's size
-                import cv2
-                render = cv2.resize(render, (image.shape[1], image.shape[0]), interpolation=cv2.INTER_AREA)
-        render = np.clip(render, 0.0, 1.0)
+        render = _render_view(renderer, avatar, cam, background, use_cnn, image.shape)
         if args.save_renders:
             np.save(out / "renders" / f"{f}_{c}.npy", render.astype(np.float32))
         s = score(render, image, mask, background, lp)

@@ -45,7 +45,7 @@ def run(args: argparse.Namespace) -> int:
     if args.screenshot and args.quit_after_frames is None:
         args.quit_after_frames = 3
     try:
-        from npga_core.posing.fastpose import resolve_device
+        from npga_core.posing.device import resolve_device
 
         resolve_device(args.device)
     except ValueError as e:

@@ -45,8 +45,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--mode", type=_mode, default="rgb", metavar="MODE",
                    help="rgb; depth (.npy: expected depth per pixel; picture: camera depth per Gaussian); alpha; "
                    "latent (.npy: the composited latent channels; picture: PCA colours of h); " + ", ".join(
-                       INSPECT_MODES[:-3]) + " (colour modes, see npga_core/inspect.py); points, ellipsoids "
-                   "(geometry views); knn (the kNN graph over the splats)")
+                       INSPECT_MODES[:-3]) + " (colour modes, see npga_core/inspection/inspector.py); points, "
+                   "ellipsoids (geometry views); knn (the kNN graph over the splats)")
     g = p.add_argument_group("inspection modes")
     g.add_argument("--offset-source", default="sum", metavar="NET",
                    help="offset mode: sum (all networks) or one network by name (F, G; an imported avatar's own)")
@@ -446,13 +446,8 @@ def _progress(done: int, total: int, started: float) -> None:
     sys.stderr.flush()
 
 
-def _render(args) -> int:
-    from npga_core.errors import shown
-    from npga_core.files.loading import load_avatar
-    from npga_core.posing.headpose import posed_camera
-    from npga_view.rendering.factory import create_renderer, describe
-    from npga_view.rendering.gl import GLUnavailableError, create_headless_context
-
+def _check_output(args) -> str:
+    """The --out suffix, once the output and the options that go with it agree (RenderError otherwise)."""
     out: Path = args.out
     suffix = out.suffix.lower()
     if suffix not in IMAGE_SUFFIXES + (".npy", ".mp4"):
@@ -467,6 +462,18 @@ def _render(args) -> int:
         raise RenderError("a single image from --sequence needs --frame K (or write a .mp4)")
     if not out.parent.is_dir():
         raise RenderError(f"--out {out}: folder {out.parent} does not exist")
+    return suffix
+
+
+def _render(args) -> int:
+    from npga_core.errors import shown
+    from npga_core.files.loading import load_avatar
+    from npga_core.posing.headpose import posed_camera
+    from npga_view.rendering.factory import create_renderer, describe
+    from npga_view.rendering.gl import GLUnavailableError, create_headless_context
+
+    out: Path = args.out
+    suffix = _check_output(args)
     background = parse_background(args.background)
     avatar = load_avatar(args.avatar)
     codes, fps, poses = _codes(args, avatar)

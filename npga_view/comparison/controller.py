@@ -91,7 +91,7 @@ class CompareController:
         self.view.background = rgb  # type: ignore[assignment]
 
     # --- per UI frame ---------------------------------------------------------------------------------
-    def frame(self, avatar: Avatar | None, version: int, code: np.ndarray | None, camera: Camera,
+    def frame(self, avatar: Avatar | None, version: object, code: np.ndarray | None, camera: Camera,
               budget_ms: float) -> bool:
         """Collect finished opens; advance the comparison when shown. True when its image changed."""
         if self._opening is not None and self._opening[1].done():
@@ -111,12 +111,13 @@ class CompareController:
             return False
         return self.view.update(avatar, version, code, camera, budget_ms)
 
-    def show(self, avatar: Avatar | None, version: int, code: np.ndarray | None, camera: Camera,
+    def show(self, avatar: Avatar | None, code: np.ndarray | None, camera: Camera,
              background: tuple[float, float, float], budget_ms: float, framebuffer: moderngl.Framebuffer,
              view: tuple[int, int, int, int], report: Callable[[str], None]) -> bool:
         """One UI frame of the window: `frame`, errors to `report`, and the comparison drawn into `view` of
         `framebuffer` (around it: the window's `background`) when it is shown and has an image (True: it replaced
-        the splat view)."""
+        the splat view). The avatar's edits are seen through `Avatar.version` (bumped by every edit)."""
+        version = None if avatar is None else (id(avatar), avatar.version)
         self.frame(avatar, version, code, camera, budget_ms)
         for msg in self.messages:
             report(msg)

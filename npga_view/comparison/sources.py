@@ -115,7 +115,7 @@ class CompareSources:
             return "this frame has no image for this camera"
         return "no avatar"
 
-    def job(self, avatar: Avatar | None, version: int, code: np.ndarray | None, camera: Camera,
+    def job(self, avatar: Avatar | None, version: object, code: np.ndarray | None, camera: Camera,
             background: tuple[float, float, float], use_cnn: bool, pair: str) -> Job | None:
         """The comparison the current choice asks for, or None when something it needs is missing."""
         first, second = pair.split("-")

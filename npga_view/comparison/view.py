@@ -108,7 +108,7 @@ class CompareView:
         return None if vw <= 0 else min(max((x - vx) / vw, 0.0), 1.0)
 
     # --- per UI frame ---------------------------------------------------------------------------------
-    def update(self, avatar: Avatar | None, avatar_version: int, code: np.ndarray | None, camera: Camera,
+    def update(self, avatar: Avatar | None, avatar_version: object, code: np.ndarray | None, camera: Camera,
                budget_ms: float) -> bool:
         """Advance the comparison of the current inputs by about `budget_ms` of GL work; True when the image on
         screen changed. `camera` and `code` are the window's (used where no capture decides them)."""

@@ -55,9 +55,8 @@ def highlight(posed: PosedGaussians, session: EditSession | None) -> PosedGaussi
 class EditController:
     """Owned by the app, which registers `handlers()` and calls `mouse`, `after_actions` and `tick` each frame."""
 
-    def __init__(self, app: ViewerHost, code_for_keyframe):
+    def __init__(self, app: ViewerHost):
         self.app = app
-        self._code_for_keyframe = code_for_keyframe  # (source, preset) -> code of a new expression key
         self.session: EditSession | None = None
         self.keyframes = KeyframeTimeline()
         self.kf_time = 0.0
@@ -115,7 +114,7 @@ class EditController:
         self.kf_time, self.kf_playing = 0.0, False
 
     def _add_expression_key(self, a: A.AddExpressionKey) -> None:
-        code = self._code_for_keyframe(a.source, a.preset)
+        code = self.app.code_for_keyframe(a.source, a.preset)
         self.keyframes.add_expression(a.time, code, interp=a.interp, label=a.preset or a.source)
 
     def _play(self, a: A.PlayKeyframes) -> None:

@@ -48,6 +48,9 @@ class ViewerHost(Protocol):
     def shown_posed(self) -> PosedGaussians | None:
         """The posed cloud on screen (before highlighting), if any."""
 
+    def code_for_keyframe(self, source: str, preset: str | None) -> np.ndarray:
+        """The code of a new expression key: from the sliders, the sequence frame or a preset."""
+
     def shown_code(self) -> np.ndarray | None:
         """The expression code of the cloud on screen."""
 

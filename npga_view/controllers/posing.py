@@ -83,6 +83,27 @@ class PoseController:
     def sequence_codes(self) -> np.ndarray:
         return self.seq_codes.get()
 
+    def code_for_keyframe(self, source: str, preset: str | None) -> np.ndarray:
+        """The code a new expression keyframe takes: from the sliders, the sequence frame or a preset."""
+        ex = self.host.avatar.expression if self.host.avatar is not None else None
+        if ex is None:
+            raise ValueError("this avatar has no expression space")
+        if source == "frame":
+            if self.codes is None:
+                raise ValueError("no sequence frame: open a sequence first")
+            return self.codes[self.frame].copy()
+        if source == "preset":
+            if preset in ex.named:
+                return ex.named[preset].copy()
+            if preset in self.host.state.presets:
+                return np.asarray(self.host.state.presets[preset], np.float32)
+            raise ValueError(f"no preset named {preset!r}")
+        return self.slider_code()
+
+    def frame_on_screen(self) -> int:
+        """The sequence frame on screen (the clock's until the first one is shown)."""
+        return self.shown_frame if self.shown_frame is not None else self.frame
+
     def following(self) -> bool:
         return self.host.sequence is not None and self.host.state.follow_sequence
 

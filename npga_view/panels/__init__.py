@@ -8,6 +8,7 @@ from dataclasses import dataclass, field
 
 from npga_view.panels.compare import ComparePanel
 from npga_view.panels.edit import EditPanel
+from npga_view.panels.errors import ErrorsPanel
 from npga_view.panels.expression import ExpressionPanel
 from npga_view.panels.files import FilesPanel
 from npga_view.panels.inspect import InspectPanel
@@ -30,11 +31,12 @@ class Panels:
     edit: EditPanel = field(default_factory=EditPanel)
     compare: ComparePanel = field(default_factory=ComparePanel)
     stats: StatsOverlay = field(default_factory=StatsOverlay)
+    errors: ErrorsPanel = field(default_factory=ErrorsPanel)
 
     @property
     def side(self) -> tuple:
-        return (self.files, self.view, self.expression, self.timeline, self.compare, self.inspect, self.keyframes,
-                self.edit)
+        return (self.errors, self.files, self.view, self.expression, self.timeline, self.compare, self.inspect,
+                self.keyframes, self.edit)
 
     @property
     def overlays(self) -> tuple:

@@ -30,6 +30,19 @@ class ComparePanel:
         if not imgui.collapsing_header("Compare"):
             return
         actions, info = state.actions, app_info.compare or CompareInfo()
+        self._files(actions, info)
+        changed, on = imgui.checkbox("Show comparison", info.active)
+        if changed:
+            actions.append(C.ShowComparison(on))
+        self._settings(actions, info)
+        if info.frames:
+            self._stepping(actions, info)
+        imgui.text_wrapped(info.status)
+        for role, s in sorted(info.scores.items()):
+            lp = "n/a" if s.lpips is None else f"{s.lpips:.4f}"
+            imgui.text(f"{score_label(role)}: PSNR {s.psnr:.2f} dB  SSIM {s.ssim:.4f}  LPIPS {lp}")
+
+    def _files(self, actions: list, info: CompareInfo) -> None:
         imgui.set_next_item_width(200)
         _, self.capture = imgui.input_text("Capture folder", self.capture)
         imgui.set_next_item_width(200)
@@ -47,14 +60,13 @@ class ComparePanel:
                 actions.append(C.OpenAvatarB(""))
         if info.loading:
             imgui.text_disabled(info.loading)
-        changed, on = imgui.checkbox("Show comparison", info.active)
-        if changed:
-            actions.append(C.ShowComparison(on))
-        pairs = list(PAIRS)
+
+    @staticmethod
+    def _settings(actions: list, info: CompareInfo) -> None:
+        pairs, modes = list(PAIRS), list(MODES)
         changed, i = imgui.combo("Compare", pairs.index(info.pair), [PAIR_LABELS[p] for p in pairs])
         if changed:
             actions.append(C.SetComparePair(pairs[i]))
-        modes = list(MODES)
         changed, i = imgui.combo("Show", modes.index(info.mode), [MODE_LABELS[m] for m in modes])
         if changed:
             actions.append(C.SetCompareMode(modes[i]))
@@ -75,12 +87,6 @@ class ComparePanel:
         changed, cnn = imgui.checkbox("Through the CNN", info.use_cnn)
         if changed:
             actions.append(C.SetCompareCnn(cnn))
-        if info.frames:
-            self._stepping(actions, info)
-        imgui.text_wrapped(info.status)
-        for role, s in sorted(info.scores.items()):
-            lp = "n/a" if s.lpips is None else f"{s.lpips:.4f}"
-            imgui.text(f"{score_label(role)}: PSNR {s.psnr:.2f} dB  SSIM {s.ssim:.4f}  LPIPS {lp}")
 
     @staticmethod
     def _stepping(actions: list, info: CompareInfo) -> None:

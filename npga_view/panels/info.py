@@ -44,6 +44,7 @@ class AppInfo:
     inspect: InspectInfo | None = None  # legend, counts, histogram, picked record (Inspect panel)
     shown: str = "splats"  # what the view shows: "splats", "refined" (CNN output), "latent", or "splats (refining)"
     cnn_ms: float = 0.0  # time of the last CNN refinement (Refiner.last_timings["cnn"])
+    cnn_device: str = ""  # where the CNN runs (torch device)
     canonical: bool = False  # the cloud on screen is the canonical one (the first pose has not arrived)
     draw_scale: float = 1.0  # resolution scale of the splat image on screen
     image_status: str = "exact"  # DrawScheduler.status: "preview", "refining" or "exact"

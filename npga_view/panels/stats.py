@@ -63,6 +63,8 @@ def _body(info: AppInfo) -> None:
     es = info.engine_status
     if es.get("device"):
         imgui.text(f"dynamics on {es['device']} ({es.get('kernel', '?')}), first layer {es.get('first_layer', '?')}")
+    if info.avatar is not None and info.avatar.cnn is not None and info.cnn_device:
+        imgui.text(f"CNN on {info.cnn_device}")
     for key, label in STAGES:
         if key in info.timings:
             imgui.text(f"{label:>12}: {info.timings[key]:8.1f} ms")

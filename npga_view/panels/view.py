@@ -20,6 +20,13 @@ class ViewPanel:
     def draw(self, state: ViewerState, info: AppInfo) -> None:
         if not imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
             return
+        self._camera(state, info)
+        self._image(state, info)
+        _refinement(state, info)
+        self._output(state, info)
+
+    def _camera(self, state: ViewerState, info: AppInfo) -> None:
+        """Presets, frame and reset, field of view and roll, rig cameras."""
         cam = state.camera
         for name, label in (("front", "Front"), ("three_quarter", "3/4"), ("side", "Side"), ("top", "Top")):
             if imgui.button(label):
@@ -42,6 +49,9 @@ class ViewPanel:
         imgui.same_line()
         if imgui.button("Load rig"):
             state.actions.append(A.LoadRig(self.rig.strip()))
+
+    def _image(self, state: ViewerState, info: AppInfo) -> None:
+        """Render pass, background, the statistics overlay and merged live images."""
         idx = RENDER_MODES.index(state.mode) if state.mode in RENDER_MODES else 0
         changed, idx = imgui.combo("Pass", idx, list(RENDER_MODES))
         if changed:
@@ -56,7 +66,9 @@ class ViewPanel:
                               "Gaussians where a full image does not fit in the frame (software GL); the image\n"
                               "after you stop is always drawn from every Gaussian. Off: every Gaussian, always.")
         remember(info, "merged_live")
-        _refinement(state, info)
+
+    def _output(self, state: ViewerState, info: AppInfo) -> None:
+        """Screenshot, MP4 recording, sessions."""
         if imgui.button("Screenshot"):
             state.actions.append(A.Screenshot())
         remember(info, "screenshot")

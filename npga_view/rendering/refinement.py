@@ -33,6 +33,7 @@ import torch
 from npga_core.camera.cameras import Camera
 from npga_core.inspection.colouring import FeaturePCA, colour_map, robust_range
 from npga_core.model.cnn import ScreenCNN, run_cnn, run_cnn_steps
+from npga_core.posing.device import resolve_device
 from npga_view.rendering.factory import choose_path
 from npga_view.rendering.renderer import load_shader
 
@@ -147,23 +148,17 @@ def _run_banded(traced: torch.nn.Module, device: torch.device, image: np.ndarray
     return out
 
 
-def _device(device: str | torch.device) -> torch.device:
-    dev = torch.device(device)
-    if dev.type == "cuda" and not torch.cuda.is_available():
-        raise ValueError(f"torch device {device!r}: CUDA is not available in this torch build or machine")
-    return dev
-
-
 class Refiner:
     """The window's screen-space refinement and latent views; see the module docstring.
 
     `ctx` is the window's moderngl context (for `upload`/`present`), `device` the torch device of the CNN
-    ("cpu", "cuda", "cuda:1", ...). Call `set_avatar` whenever the avatar (or its CNN or latent features) changes.
+    ("cpu", "cuda", "cuda:1", "mps", "auto": `npga_core.posing.device.resolve_device`). Call `set_avatar`
+    whenever the avatar (or its CNN or latent features) changes.
     """
 
     def __init__(self, ctx: moderngl.Context, device: str | torch.device = "cpu") -> None:
         self.ctx = ctx
-        self.device = _device(device)
+        self.device = device if isinstance(device, torch.device) else resolve_device(device)
         self.cnn: ScreenCNN | None = None
         self._traced: torch.nn.Module | None = None
         self.latent_dim = 0

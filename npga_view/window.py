@@ -1,0 +1,125 @@
+"""`Window`: the glfw window with its OpenGL context and imgui, and the per-frame loop around them.
+
+Opens a 4.3 core context (the compute path), else 4.1 core (macOS, the 4.1 path); installs imgui's glfw and
+OpenGL backends; splits the framebuffer into the side panel (`SIDE_PANEL` logical pixels) and the splat view.
+`begin_frame` polls input (or waits for it up to a timeout when nothing moves), `end_frame` renders imgui
+and swaps. Nothing here knows about avatars.
+"""
+
+from __future__ import annotations
+
+import ctypes
+import warnings
+from collections.abc import Callable
+
+import moderngl
+import numpy as np
+
+from npga_view.imgui_glfw import glfw, imgui
+from npga_view.rendering.gl import release_current_egl, window_context
+
+SIDE_PANEL = 400  # logical pixels
+
+
+class Window:
+    """One glfw window; `handle` is glfw's window (None once closed), `ctx` its moderngl context."""
+
+    def __init__(self, width: int, height: int, visible: bool = True, vsync: bool = True,
+                 on_drop: Callable[[object, list[str]], None] | None = None, title: str = "npga-view"):
+        release_current_egl()  # a current headless context of this process would make the window's GLX fail
+        if not glfw.init():
+            raise RuntimeError("glfw could not initialise (no display? set DISPLAY or use Xvfb)")
+        glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)
+        glfw.window_hint(glfw.OPENGL_FORWARD_COMPAT, True)  # macOS gives core contexts only forward-compatible
+        glfw.window_hint(glfw.VISIBLE, visible)
+        glfw.window_hint(glfw.SCALE_TO_MONITOR, True)
+        self.handle = None
+        for minor in (3, 1):  # 4.3 core for the compute path, else 4.1 core (macOS) for the 4.1 path (#18)
+            glfw.window_hint(glfw.CONTEXT_VERSION_MAJOR, 4)
+            glfw.window_hint(glfw.CONTEXT_VERSION_MINOR, minor)
+            with warnings.catch_warnings():
+                warnings.simplefilter("ignore")  # pyGLFW warns about the refused 4.3 request
+                self.handle = glfw.create_window(width, height, title, None, None)
+            if self.handle:
+                break
+        if not self.handle:
+            glfw.terminate()
+            raise RuntimeError("could not open an OpenGL 4.3 or 4.1 core window")
+        glfw.make_context_current(self.handle)
+        glfw.swap_interval(1 if vsync else 0)
+        if on_drop is not None:
+            glfw.set_drop_callback(self.handle, on_drop)  # before imgui installs (and chains) its callbacks
+        imgui.create_context()
+        imgui.get_io().set_ini_filename(None)
+        ptr = ctypes.cast(self.handle, ctypes.c_void_p).value
+        imgui.backends.glfw_init_for_opengl(ptr, True)
+        imgui.backends.opengl3_init("#version 330")
+        self.ctx: moderngl.Context = window_context()
+
+    # -- geometry ---------------------------------------------------------------------------------------
+    def framebuffer_size(self) -> tuple[int, int]:
+        return glfw.get_framebuffer_size(self.handle)
+
+    def logical_size(self) -> tuple[int, int]:
+        """The window's size in logical pixels (imgui's units)."""
+        return glfw.get_window_size(self.handle)
+
+    def scale(self) -> float:
+        """Framebuffer pixels per logical pixel."""
+        fw, _ = glfw.get_framebuffer_size(self.handle)
+        ww, _ = glfw.get_window_size(self.handle)
+        return fw / max(ww, 1)
+
+    def viewport(self) -> tuple[int, int, int, int]:
+        """(x, y, w, h) of the splat view in framebuffer pixels (right of the side panel)."""
+        fw, fh = self.framebuffer_size()
+        side = min(int(SIDE_PANEL * self.scale()), fw - 16)
+        return side, 0, max(1, fw - side), max(1, fh)
+
+    def set_title(self, title: str) -> None:
+        glfw.set_window_title(self.handle, title)
+
+    # -- frames -----------------------------------------------------------------------------------------
+    def begin_frame(self, wait_s: float = 0.0) -> None:
+        """Take input (waiting for it up to `wait_s` when > 0) and start an imgui frame."""
+        if wait_s > 0:
+            glfw.wait_events_timeout(wait_s)
+        else:
+            glfw.poll_events()
+        imgui.backends.opengl3_new_frame()
+        imgui.backends.glfw_new_frame()
+        imgui.new_frame()
+
+    def clear(self) -> None:
+        """Bind the window's framebuffer over its whole size and clear it to the background grey."""
+        self.ctx.screen.use()
+        fw, fh = self.framebuffer_size()
+        self.ctx.viewport = (0, 0, fw, fh)
+        self.ctx.clear(0.08, 0.08, 0.09, 1.0)
+
+    def end_frame(self) -> None:
+        """Draw imgui over the frame and show it."""
+        imgui.render()
+        imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
+        glfw.swap_buffers(self.handle)
+
+    def close_requested(self) -> bool:
+        return bool(glfw.window_should_close(self.handle))
+
+    def read(self, viewport_only: bool = False) -> np.ndarray:
+        """RGB uint8 pixels of the back buffer as last drawn (top row first)."""
+        fw, fh = self.framebuffer_size()
+        vp = self.viewport() if viewport_only else (0, 0, fw, fh)
+        data = self.ctx.screen.read(viewport=vp, components=3, alignment=1)
+        return np.frombuffer(data, np.uint8).reshape(vp[3], vp[2], 3)[::-1].copy()
+
+    def close(self) -> None:
+        """Shut imgui down and destroy the window (safe to call twice)."""
+        if self.handle is None:
+            return
+        imgui.backends.opengl3_shutdown()
+        imgui.backends.glfw_shutdown()
+        imgui.destroy_context()
+        glfw.destroy_window(self.handle)
+        self.handle = None
+        glfw.terminate()
