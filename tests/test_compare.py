@@ -42,17 +42,17 @@ def test_wipe_shows_a_left_of_the_divider_and_b_right(t):
 def test_difference_heatmap_scale_and_colour_bar():
     a = np.zeros((150, 200, 3), np.float32)
     b = a.copy()
-    b[:, 100:] = 0.5  # error 0.5 >= vmax on the right half, 0 on the left
+    b[:, :100] = 0.5  # error 0.5 >= vmax on the left half, 0 on the right
     out = compose(a, b, CompareSettings("difference", vmax=0.25))
-    np.testing.assert_allclose(out[75, 10], INFERNO_LOW, atol=2 / 255)
-    np.testing.assert_allclose(out[75, 120], INFERNO_HIGH, atol=2 / 255)
-    bar_x = 200 - int(200 * 0.06) // 2 - 2
+    np.testing.assert_allclose(out[75, 190], INFERNO_LOW, atol=2 / 255)
+    np.testing.assert_allclose(out[75, 80], INFERNO_HIGH, atol=2 / 255)
+    bar_x = 2 + int(200 * 0.06) // 2
     top, bottom = out[10, bar_x], out[138, bar_x]
     assert top.sum() > bottom.sum() + 1.0  # bright at the top (vmax), dark at the bottom (0)
     plain = heatmap(error_map(a, b), 0.25, bar=False)
     np.testing.assert_allclose(plain[75, bar_x], INFERNO_HIGH, atol=2 / 255)
-    small = compose(a[:90, :120], b[:90, :120], CompareSettings("difference", vmax=0.25))
-    np.testing.assert_allclose(small[:, :100], np.broadcast_to(INFERNO_LOW, (90, 100, 3)), atol=2 / 255)
+    small = compose(b[:90, :120], b[:90, :120], CompareSettings("difference", vmax=0.25))
+    np.testing.assert_allclose(small, np.broadcast_to(INFERNO_LOW, (90, 120, 3)), atol=2 / 255)  # no bar
 
 
 def test_error_map_is_the_mean_absolute_channel_error():

@@ -6,7 +6,7 @@ presents it like any other image and a test reads it back pixel for pixel.
 
 The heatmap shows the per-pixel error |a - b| averaged over the colour channels, mapped linearly from 0 to
 `vmax` onto the perceptually ordered "inferno" colour map (dark: equal; yellow: `vmax` or more), with a colour bar
-on the right edge labelled 0 and `vmax`. A fixed `vmax` (not the image's own maximum) keeps frames comparable.
+on the left edge labelled 0 and `vmax`. A fixed `vmax` (not the image's own maximum) keeps frames comparable.
 """
 
 from __future__ import annotations
@@ -55,7 +55,7 @@ def error_map(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 def heatmap(err: np.ndarray, vmax: float = DEFAULT_VMAX, bar: bool = True) -> np.ndarray:
-    """`err` (H, W) coloured with inferno over [0, vmax]; with `bar`, a labelled colour bar on the right edge."""
+    """`err` (H, W) coloured with inferno over [0, vmax]; with `bar`, a labelled colour bar on the left edge."""
     idx = np.clip(np.rint(np.asarray(err, np.float32) / vmax * 255.0), 0, 255).astype(np.intp)
     out = _inferno()[idx]
     if bar:
@@ -71,7 +71,7 @@ def _draw_bar(img: np.ndarray, vmax: float) -> None:
     top, bottom = max(2, h // 20), h - max(2, h // 20)
     if w < MIN_BAR_IMAGE[0] or h < MIN_BAR_IMAGE[1]:  # a thumbnail: the bar would hide the image
         return
-    x0 = w - bw - max(2, w // 100)
+    x0 = max(2, w // 100)  # at the left edge (the window's statistics overlay sits top right)
     ramp = np.linspace(255, 0, bottom - top).astype(np.intp)
     img[top:bottom, x0:x0 + bw] = _inferno()[ramp][:, None, :]
     img[top:bottom, x0 - 1] = img[top:bottom, x0 + bw] = 1.0
@@ -79,7 +79,7 @@ def _draw_bar(img: np.ndarray, vmax: float) -> None:
     outline, fill = np.zeros((h, w), np.uint8), np.zeros((h, w), np.uint8)  # putText draws on 8-bit images only
     for text, y in ((f"{vmax:g}", top + int(14 * scale)), ("0", bottom - 3)):
         (tw, _), _ = cv2.getTextSize(text, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)
-        org = (max(0, x0 - tw - 4), y)
+        org = (min(x0 + bw + 4, w - tw), y)
         cv2.putText(outline, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, 255, 3, cv2.LINE_AA)
         cv2.putText(fill, text, org, cv2.FONT_HERSHEY_SIMPLEX, scale, 255, 1, cv2.LINE_AA)
     img *= 1.0 - outline[..., None] / 255.0  # black outline, white letters: readable on any colour
