@@ -65,7 +65,8 @@ class ViewerApp:
         # change drawn at once in full by its `unbudgeted` scheduler (npga_view/cli/bench_window.py)
         if frame_budget_ms is None and unbudgeted is None:
             raise ValueError("frame_budget_ms=None needs the unbudgeted scheduler of the window benchmark")
-        scheduler = DrawScheduler if frame_budget_ms is not None else unbudgeted
+        scheduler: type[DrawScheduler] = DrawScheduler if unbudgeted is None or frame_budget_ms is not None \
+            else unbudgeted
         self.draws = scheduler(self.renderer, budget_ms=frame_budget_ms or 25.0, lod=self.lod)
         self.content_version = 0  # incremented whenever the cloud on screen (or how it is coloured) changes
         # frame_budget_ms=None is the behaviour before budgeting (benchmarks compare both): every change drawn
