@@ -18,7 +18,7 @@ import numbers
 import os
 import types
 import typing
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -28,6 +28,7 @@ STRICT_ENV = "NPGA_VIEW_STRICT_ACTIONS"
 Point2 = tuple[float, float]
 Point3 = tuple[float, float, float]
 CombineMode = Literal["replace", "add", "subtract", "intersect"]
+PresetName = Literal["front", "three_quarter", "side", "top"]
 
 
 class ActionError(Exception):
@@ -78,7 +79,7 @@ class LoadRig(Action):
 # -- camera ------------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class CameraPreset(Action):
-    name: Literal["front", "three_quarter", "side", "top"]
+    name: PresetName
 
 
 @dataclass(frozen=True)
@@ -459,12 +460,13 @@ class Dispatcher:
         """Check `action` and run its handler; ActionError for an unknown type or bad fields. Errors of the
         handler (a bad file, a refused edit) propagate for the caller to report."""
         check_fields(action)
+        assert isinstance(action, Action)  # (check_fields said so)
         handler = self.table.get(type(action))
         if handler is None:
             raise ActionError(f"no handler for the action {type(action).__name__}")
         handler(action)
 
-    def run_all(self, actions: list[object], report: Callable[[str], None],
+    def run_all(self, actions: Sequence[object], report: Callable[[str], None],
                 expected: tuple[type[BaseException], ...] = ()) -> None:
         """Dispatch each action; `expected` errors (bad files, refused edits) and, unless strict, ActionErrors go
         to `report` (the window's error list); a strict dispatcher raises ActionError."""

@@ -212,6 +212,7 @@ class EditController:
 
     def _write_for_worker(self) -> str | None:
         """The edited avatar in a private file for the pose worker (None for static avatars)."""
+        assert self.session is not None
         a = self.session.avatar
         if a.dynamics is None:
             return None

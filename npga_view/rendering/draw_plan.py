@@ -105,7 +105,7 @@ def plan(i: PlanInputs) -> Plan:
     stale = shown is None or shown.target != i.target or shown.exact_content != exact
     # while live, a live image of this very target stays (the adapted scale moving a little is no reason to draw
     # it again: that only took the cores from the exact pose being computed)
-    if not stale and not (shown.scale < want and not (i.live and shown.live)):
+    if shown is not None and not stale and not (shown.scale < want and not (i.live and shown.live)):
         return Plan(FrameState.IDLE)
     if use_lod and source is Source.FULL and i.merge_pending:
         bound = _merge_bound_ms(i, steady=shown is not None and shown.target.version == i.target.version)
