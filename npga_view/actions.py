@@ -29,6 +29,8 @@ Point2 = tuple[float, float]
 Point3 = tuple[float, float, float]
 CombineMode = Literal["replace", "add", "subtract", "intersect"]
 PresetName = Literal["front", "three_quarter", "side", "top"]
+KeySource = Literal["sliders", "frame", "preset"]
+Track = Literal["expression", "camera"]
 
 
 class ActionError(Exception):
@@ -338,7 +340,7 @@ class NewKeyframes(Action):
 @dataclass(frozen=True)
 class AddExpressionKey(Action):
     time: float
-    source: Literal["sliders", "frame", "preset"] = "sliders"
+    source: KeySource = "sliders"
     preset: str | None = None
     interp: str = "smooth"
 
@@ -350,14 +352,14 @@ class AddCameraKey(Action):
 
 @dataclass(frozen=True)
 class UpdateKey(Action):
-    track: Literal["expression", "camera"]
+    track: Track
     index: int
     changes: Mapping[str, object] = field(default_factory=dict)  # time, interp, ease_in, ease_out, hold, label
 
 
 @dataclass(frozen=True)
 class RemoveKey(Action):
-    track: Literal["expression", "camera"]
+    track: Track
     index: int
 
 

@@ -140,7 +140,8 @@ class UnbudgetedScheduler(DrawScheduler):
         shown = self._shown
         if shown is not None and shown.target == target and shown.scale >= 1.0:
             return False
-        self._start(camera, mode, _Image(target, 1.0, exact_content), frame_start if now is None else now)
+        image = _Image(target, 1.0, exact_content, False, self.renderer)
+        self._start(camera, mode, image, frame_start if now is None else now)
         return self._continue(math.inf, frame_start)
 
 

@@ -62,8 +62,8 @@ class _Image:
     target: Target
     scale: float
     exact_content: bool  # the cloud drawn was the exact pose (not a preview)
-    live: bool = False  # drawn at the live scale while the view changed
-    renderer: SplatRenderer | None = None  # who draws it: the full cloud's renderer or the merged cloud's
+    live: bool
+    renderer: SplatRenderer  # who draws it: the full cloud's renderer or the merged cloud's
 
     def info(self, full: SplatRenderer) -> ImageInfo:
         return ImageInfo(self.target, self.scale, self.exact_content, self.live, self.renderer is not full)
@@ -245,7 +245,8 @@ class DrawScheduler:
             self.interactive_scale, self.lod_scale, use_lod=lod is not None, merged_ready=merged is not None,
             merged_version=lod.uploaded_version if lod is not None else -1, merge_pending=pending,
             # (how long merges take matters only when both live images were measured)
-            merge_ms=lod.merge_ms if pending and None not in walls else 0.0, lod_wait_ms=self.lod_wait_ms,
+            merge_ms=lod.merge_ms if lod is not None and pending and None not in walls else 0.0,
+            lod_wait_ms=self.lod_wait_ms,
             live_wall_ms=walls,
             waited_ms=None if self._lod_wait is None else (now - self._lod_wait) * 1e3)
         return inputs, merged
@@ -261,12 +262,12 @@ class DrawScheduler:
             return False
         if decision.draw is None:
             return True
-        renderer = merged if decision.source is Source.MERGED else self.renderer
+        renderer = merged if decision.source is Source.MERGED else None
         if decision.source is Source.MERGED_BEHIND and self.lod is not None:
             renderer = self.lod.renderer
         self._lod_wait = None
         self._start(camera, target.mode, _Image(decision.draw, decision.scale, decision.exact_content,
-                                                live=decision.live, renderer=renderer), now)
+                                                decision.live, renderer or self.renderer), now)
         return True
 
     def frame_budget(self, live: bool, merged: bool = False) -> float:
@@ -284,19 +285,19 @@ class DrawScheduler:
         return self.budget_ms
 
     def _start(self, camera: Camera, mode: str, image: _Image, now: float) -> None:
-        if image.renderer is None:
-            image.renderer = self.renderer
         image.renderer.begin_draw(scaled_camera(camera, image.scale), mode)
         self._job = image
         self._job_t0 = time.perf_counter()  # (wall time; `now` may be a test's clock)
 
     def _continue(self, budget_ms: float, frame_start: float) -> bool:
         """Draw until `budget_ms` after `frame_start` is spent (the pre-pass of a new image counts)."""
-        r = self._job.renderer
+        job = self._job
+        assert job is not None
+        r = job.renderer
         left = budget_ms - (time.perf_counter() - frame_start) * 1e3
         if not r.continue_draw(max(left, 1.0)):
             return False
-        job, self._job = self._job, None
+        self._job = None
         t = r.last_timings
         self.last_image_ms = t.get("draw", 0.0) + t.get("sort", 0.0) + t.get("preprocess", 0.0)
         self.last_image_wall_ms = (time.perf_counter() - self._job_t0) * 1e3
