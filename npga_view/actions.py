@@ -18,7 +18,7 @@ import numbers
 import os
 import types
 import typing
-from collections.abc import Callable, Iterator, Mapping
+from collections.abc import Callable, Iterator, Mapping, Sequence
 from dataclasses import dataclass, field
 from typing import Any, Literal
 
@@ -28,6 +28,9 @@ STRICT_ENV = "NPGA_VIEW_STRICT_ACTIONS"
 Point2 = tuple[float, float]
 Point3 = tuple[float, float, float]
 CombineMode = Literal["replace", "add", "subtract", "intersect"]
+PresetName = Literal["front", "three_quarter", "side", "top"]
+KeySource = Literal["sliders", "frame", "preset"]
+Track = Literal["expression", "camera"]
 
 
 class ActionError(Exception):
@@ -78,7 +81,7 @@ class LoadRig(Action):
 # -- camera ------------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class CameraPreset(Action):
-    name: Literal["front", "three_quarter", "side", "top"]
+    name: PresetName
 
 
 @dataclass(frozen=True)
@@ -337,7 +340,7 @@ class NewKeyframes(Action):
 @dataclass(frozen=True)
 class AddExpressionKey(Action):
     time: float
-    source: Literal["sliders", "frame", "preset"] = "sliders"
+    source: KeySource = "sliders"
     preset: str | None = None
     interp: str = "smooth"
 
@@ -349,14 +352,14 @@ class AddCameraKey(Action):
 
 @dataclass(frozen=True)
 class UpdateKey(Action):
-    track: Literal["expression", "camera"]
+    track: Track
     index: int
     changes: Mapping[str, object] = field(default_factory=dict)  # time, interp, ease_in, ease_out, hold, label
 
 
 @dataclass(frozen=True)
 class RemoveKey(Action):
-    track: Literal["expression", "camera"]
+    track: Track
     index: int
 
 
@@ -459,12 +462,13 @@ class Dispatcher:
         """Check `action` and run its handler; ActionError for an unknown type or bad fields. Errors of the
         handler (a bad file, a refused edit) propagate for the caller to report."""
         check_fields(action)
+        assert isinstance(action, Action)  # (check_fields said so)
         handler = self.table.get(type(action))
         if handler is None:
             raise ActionError(f"no handler for the action {type(action).__name__}")
         handler(action)
 
-    def run_all(self, actions: list[object], report: Callable[[str], None],
+    def run_all(self, actions: Sequence[object], report: Callable[[str], None],
                 expected: tuple[type[BaseException], ...] = ()) -> None:
         """Dispatch each action; `expected` errors (bad files, refused edits) and, unless strict, ActionErrors go
         to `report` (the window's error list); a strict dispatcher raises ActionError."""

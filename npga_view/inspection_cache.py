@@ -14,6 +14,7 @@ from collections.abc import Callable
 import numpy as np
 
 from npga_core.camera.cameras import Camera
+from npga_core.inspection.colouring import Colouring
 from npga_core.inspection.inspector import InspectFrame, InspectInfo, Inspector, InspectSettings
 from npga_core.model.avatar import Avatar
 from npga_core.model.gaussians import PosedGaussians
@@ -27,7 +28,7 @@ class InspectionCache:
     def __init__(self) -> None:
         self.inspector: Inspector | None = None
         self.key: tuple | None = None  # (settings key, camera key) of the frame on screen
-        self.colouring = None  # legend of the current colour mode (None: plain colours)
+        self.colouring: Colouring | None = None  # legend of the current colour mode (None: plain colours)
         self.figures: InspectInfo | None = None  # what the Inspect panel shows (`AppInfo.inspect`)
         self.due = False  # the figures are out of date
         self._t = -math.inf  # when they were last computed
@@ -71,5 +72,5 @@ class InspectionCache:
         self.due = False
         self._t = now
         err = self.figures.error if self.figures is not None else None
-        self.figures = self.inspector.info(settings, posed, code, self.colouring, camera, drawn_mask(), near)
+        self.figures = inspector.info(settings, posed, code, self.colouring, camera, drawn_mask(), near)
         self.figures.error = self.figures.error or err

@@ -42,7 +42,7 @@ class OpeningHost(Protocol):
     device: str
     legacy: bool
     remember_recent: bool
-    window: Window
+    window: Window | None
     edits: EditController
     poses: PoseController
     bakes: BakeController
@@ -65,7 +65,8 @@ def open_avatar(app: OpeningHost, path: str) -> bool:
     adopt_avatar(app, avatar, path)
     app.edits.start(avatar, avatar.source)
     add_recent(app, path)
-    app.window.set_title(f"npga-view - {Path(path).name}")
+    if app.window is not None:
+        app.window.set_title(f"npga-view - {Path(path).name}")
     return True
 
 

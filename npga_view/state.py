@@ -20,6 +20,7 @@ from npga_core.files.places import user_config_dir
 from npga_core.files.untrusted import read_json
 from npga_core.inspection.inspector import InspectSettings
 from npga_core.posing.smoothing import check_playback
+from npga_view.actions import Action
 
 MAX_SLIDERS = 50
 RENDER_MODES = ("rgb", "depth", "alpha")
@@ -118,7 +119,7 @@ class ViewerState:
     errors: list[str] = field(default_factory=list)
     recent: list[str] = field(default_factory=list)
     presets: dict[str, list[float]] = field(default_factory=dict)  # user expression presets: name -> code
-    actions: list[tuple[str, object]] = field(default_factory=list)  # requests from panels, run by the app
+    actions: list[Action] = field(default_factory=list)  # requests from panels and keys (npga_view/actions.py)
 
     def report(self, message: str) -> None:
         """Show an error in the UI (kept short, newest last, at most 5)."""

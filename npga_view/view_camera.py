@@ -43,12 +43,13 @@ class ViewCamera:
         st, kf, rig = self._state, self._kf, self._rig()
         _, _, w, h = self._viewport()
         use_rig = st.rig_index >= 0 and bool(rig)
-        if not ignore_keyframes and kf.kf_playing and kf.keyframes.camera:
-            cam = kf.keyframes.camera_at(kf.kf_time, w, h)
-        elif use_rig:
+        cam = None
+        if not ignore_keyframes and kf.kf_playing:
+            cam = kf.keyframes.camera_at(kf.kf_time, w, h)  # (None without camera keys)
+        if cam is None and use_rig:
             names = list(rig)
             cam = fit_camera(rig[names[st.rig_index % len(names)]], w, h)
-        else:
+        elif cam is None:
             cam = st.camera.camera(w, h)
         seq = self._sequence()
         if seq is not None and st.follow_sequence and st.timeline.head_pose and has_head_pose(seq):

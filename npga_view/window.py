@@ -11,6 +11,7 @@ from __future__ import annotations
 import ctypes
 import warnings
 from collections.abc import Callable
+from typing import Any
 
 import moderngl
 import numpy as np
@@ -25,7 +26,7 @@ class Window:
     """One glfw window; `handle` is glfw's window (None once closed), `ctx` its moderngl context."""
 
     def __init__(self, width: int, height: int, visible: bool = True, vsync: bool = True,
-                 on_drop: Callable[[object, list[str]], None] | None = None, title: str = "npga-view"):
+                 on_drop: Callable[[Any, list[str]], None] | None = None, title: str = "npga-view"):
         release_current_egl()  # a current headless context of this process would make the window's GLX fail
         if not glfw.init():
             raise RuntimeError("glfw could not initialise (no display? set DISPLAY or use Xvfb)")
@@ -47,27 +48,35 @@ class Window:
             raise RuntimeError("could not open an OpenGL 4.3 or 4.1 core window")
         glfw.make_context_current(self.handle)
         glfw.swap_interval(1 if vsync else 0)
-        if on_drop is not None:
-            glfw.set_drop_callback(self.handle, on_drop)  # before imgui installs (and chains) its callbacks
+        if on_drop is not None:  # before imgui installs (and chains) its callbacks; pyGLFW's stub lacks this form
+            glfw.set_drop_callback(self.handle, on_drop)  # type: ignore[arg-type]
         imgui.create_context()
         imgui.get_io().set_ini_filename(None)
         ptr = ctypes.cast(self.handle, ctypes.c_void_p).value
+        assert ptr is not None
         imgui.backends.glfw_init_for_opengl(ptr, True)
         imgui.backends.opengl3_init("#version 330")
         self.ctx: moderngl.Context = window_context()
 
     # -- geometry ---------------------------------------------------------------------------------------
+    @property
+    def _h(self):
+        """The glfw window (an error once closed)."""
+        if self.handle is None:
+            raise RuntimeError("the window is closed")
+        return self.handle
+
     def framebuffer_size(self) -> tuple[int, int]:
-        return glfw.get_framebuffer_size(self.handle)
+        return glfw.get_framebuffer_size(self._h)
 
     def logical_size(self) -> tuple[int, int]:
         """The window's size in logical pixels (imgui's units)."""
-        return glfw.get_window_size(self.handle)
+        return glfw.get_window_size(self._h)
 
     def scale(self) -> float:
         """Framebuffer pixels per logical pixel."""
-        fw, _ = glfw.get_framebuffer_size(self.handle)
-        ww, _ = glfw.get_window_size(self.handle)
+        fw, _ = glfw.get_framebuffer_size(self._h)
+        ww, _ = glfw.get_window_size(self._h)
         return fw / max(ww, 1)
 
     def viewport(self) -> tuple[int, int, int, int]:
@@ -77,7 +86,7 @@ class Window:
         return side, 0, max(1, fw - side), max(1, fh)
 
     def set_title(self, title: str) -> None:
-        glfw.set_window_title(self.handle, title)
+        glfw.set_window_title(self._h, title)
 
     # -- frames -----------------------------------------------------------------------------------------
     def begin_frame(self, wait_s: float = 0.0) -> None:
@@ -101,10 +110,10 @@ class Window:
         """Draw imgui over the frame and show it."""
         imgui.render()
         imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
-        glfw.swap_buffers(self.handle)
+        glfw.swap_buffers(self._h)
 
     def close_requested(self) -> bool:
-        return bool(glfw.window_should_close(self.handle))
+        return bool(glfw.window_should_close(self._h))
 
     def read(self, viewport_only: bool = False) -> np.ndarray:
         """RGB uint8 pixels of the back buffer as last drawn (top row first)."""

@@ -141,8 +141,11 @@ def test_scheduler_labels_a_preview_pose_until_the_exact_one(renderer, posed):
     assert sched.status == "exact"
 
 
-def test_disabled_scheduler_draws_each_change_at_once(renderer, posed):
-    sched = DrawScheduler(renderer, enabled=False)
+def test_unbudgeted_scheduler_draws_each_change_at_once(renderer, posed):
+    """The window benchmark's comparison (npga_view/cli/bench_window.py): drawing as before frame budgets."""
+    from npga_view.cli.bench_window import UnbudgetedScheduler
+
+    sched = UnbudgetedScheduler(renderer)
     cam = frame_points(posed.means, 130, 110)
     assert sched.frame(cam, "rgb", 1, interacting=True)
     assert sched.scale == 1.0 and renderer.image_size == (130, 110)

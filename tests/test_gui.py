@@ -166,6 +166,25 @@ def test_every_action_type_has_a_handler_and_keys_send_actions(app, avatar_path)
     assert not app.edits.session.hidden.any()
 
 
+def test_keyframes_play_from_the_panel_action(app, avatar_path):
+    """`PlayKeyframes(True)` plays a timeline with keys: the playhead advances and the camera follows the keys
+    (it never played before #26: `not timeline.is_empty` tested a bound method, always true)."""
+    assert app.open_avatar(avatar_path)
+    settle(app)
+    app.state.actions += [A.NewKeyframes(), A.AddCameraKey(0.0)]
+    app.step()
+    app.state.camera.orbit(60, 0)
+    app.state.actions += [A.AddCameraKey(2.0), A.PlayKeyframes(True)]
+    app.step()
+    assert app.edits.kf_playing
+    start = app.current_camera().world_to_camera.copy()
+    assert run_until(app, lambda: app.edits.kf_time > 0.3, timeout=60)
+    assert not np.allclose(app.current_camera().world_to_camera, start)  # the keyed camera moves
+    app.state.actions.append(A.PlayKeyframes(False))
+    app.step()
+    assert not app.edits.kf_playing
+
+
 def test_open_move_slider_and_see_pixels_change(app, avatar_path):
     assert app.open_avatar(avatar_path)
     settle(app)

@@ -46,7 +46,7 @@ def _brush(s: E.EditSession, a: A.SelectBrush, v: EditView) -> None:
                    means=v.means)
 
 
-EditFn = Callable[[E.EditSession, Any, EditView], None]
+EditFn = Callable[[E.EditSession, Any, EditView], object]  # (what an edit returns is not used)
 
 EDIT_TABLE: dict[type[A.Action], EditFn] = {
     A.SelectRect: _rect,
@@ -95,7 +95,7 @@ def _clear(tl: KeyframeTimeline) -> None:
     tl.code_dim = None
 
 
-KEYFRAME_TABLE: dict[type[A.Action], Callable[[KeyframeTimeline, Any], None]] = {
+KEYFRAME_TABLE: dict[type[A.Action], Callable[[KeyframeTimeline, Any], object]] = {
     A.UpdateKey: lambda tl, a: tl.update_key(a.track, a.index, **dict(a.changes)),
     A.RemoveKey: lambda tl, a: tl.remove_key(a.track, a.index),
     A.ClearKeyframes: lambda tl, a: _clear(tl),

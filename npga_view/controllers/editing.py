@@ -118,7 +118,7 @@ class EditController:
         self.keyframes.add_expression(a.time, code, interp=a.interp, label=a.preset or a.source)
 
     def _play(self, a: A.PlayKeyframes) -> None:
-        self.kf_playing = a.playing and not self.keyframes.is_empty
+        self.kf_playing = a.playing and not self.keyframes.is_empty()
 
     def _seek(self, a: A.SeekKeyframes) -> None:
         self.kf_time, self.kf_playing = max(0.0, a.time), False
@@ -177,7 +177,7 @@ class EditController:
     def _draw_outline(self, tool: str) -> None:
         dl = imgui.get_foreground_draw_list()
         col = imgui.get_color_u32(imgui.ImVec4(1.0, 0.6, 0.1, 1.0))
-        d = self._drag
+        d = self._drag or []
         if tool == "rect" and len(d) >= 2:
             (x0, y0), (x1, y1) = d[0], d[-1]
             dl.add_rect(imgui.ImVec2(min(x0, x1), min(y0, y1)), imgui.ImVec2(max(x0, x1), max(y0, y1)), col,
@@ -212,6 +212,7 @@ class EditController:
 
     def _write_for_worker(self) -> str | None:
         """The edited avatar in a private file for the pose worker (None for static avatars)."""
+        assert self.session is not None
         a = self.session.avatar
         if a.dynamics is None:
             return None
@@ -224,7 +225,7 @@ class EditController:
 
     def tick(self, dt: float) -> None:
         """Keyframe playhead and autosave."""
-        if self.kf_playing and not self.keyframes.is_empty:
+        if self.kf_playing and not self.keyframes.is_empty():
             dur = max(self.keyframes.duration, 1e-6)
             self.kf_time = (self.kf_time + dt) % dur
         s = self.session

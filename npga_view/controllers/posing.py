@@ -77,7 +77,9 @@ class PoseController:
     # ------------------------------------------------------------------------------------------- codes
     def slider_code(self) -> np.ndarray:
         """The code the expression sliders describe."""
-        st, ex = self.host.state, self.host.avatar.expression
+        avatar = self.host.avatar
+        assert avatar is not None and avatar.expression is not None, "sliders need an expression space"
+        st, ex = self.host.state, avatar.expression
         return ex.from_sliders(st.sliders) if st.sliders.size else ex.mean.copy()
 
     def sequence_codes(self) -> np.ndarray:
@@ -116,6 +118,7 @@ class PoseController:
         if self.following():
             codes = self.sequence_codes()
             shown = self.shown_frame == self.requested_frame
+            assert self.playback is not None  # (a sequence is followed)
             frame = self.playback.advance(host.state.timeline, dt, shown)
             self.frame = frame
             self.requested_frame = frame
@@ -139,7 +142,7 @@ class PoseController:
         following = self.following()
         if code is not None and (self.requested is None or not np.array_equal(code, self.requested)):
             tl = host.state.timeline
-            if following and self.bakes.usable(self.seq_codes.key()):
+            if following and self.requested_frame is not None and self.bakes.usable(self.seq_codes.key()):
                 req = eng.request_frame(self.requested_frame)
             else:  # sliders and real-time playback: a fast preview while exact poses are slow, then the exact
                 # pose (abandoned when the clock has moved on); every-frame playback: exact poses only
@@ -152,7 +155,8 @@ class PoseController:
             # a frame with the code already on screen (a held expression): it is shown as it is, and the head
             # pose of the new frame applies
             self.shown_frame = self.requested_frame
-            self.playback.shown(self.shown_frame, time.perf_counter(), host.state.timeline.playing)
+            if self.playback is not None and self.shown_frame is not None:
+                self.playback.shown(self.shown_frame, time.perf_counter(), host.state.timeline.playing)
         self._take(eng.poll())
         if eng.last_error:
             host.state.report(eng.last_error)
@@ -179,7 +183,7 @@ class PoseController:
         host = self.host
         self.canonical = False
         frame = self._frame_of_request.get(result.request_id)
-        if len(result.posed) == len(host.avatar):
+        if host.avatar is not None and len(result.posed) == len(host.avatar):
             p = result.posed
             self.shown_code = result.code
             host.show(PosedGaussians(p.means.copy(), p.quats.copy(), p.scales.copy(), p.opacities.copy(),

@@ -14,6 +14,7 @@ import shutil
 import sys
 from collections.abc import Callable, Mapping
 from pathlib import Path
+from typing import Any
 
 from imgui_bundle import imgui
 
@@ -75,7 +76,7 @@ class FilesPanel:
     def __init__(self, browse: str, native: bool | None = None):
         self.path = ""
         self.browse = browse  # the folder the browser and the dialogs start in
-        self.dialog = None  # (action name, pending portable_file_dialogs dialog) while one is open
+        self.dialog: tuple[str, Any] | None = None  # (action name, pending portable_file_dialogs dialog)
         self.native = native  # native dialogs (None: decided by `native_dialogs_available` when first drawn)
 
     def _native(self) -> bool:

@@ -18,7 +18,7 @@ from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import ViewerState
 
-SOURCES = ("sliders", "frame", "preset")
+SOURCES: tuple[A.KeySource, ...] = ("sliders", "frame", "preset")
 
 
 class KeyframesPanel:
@@ -105,7 +105,7 @@ class KeyframesPanel:
             state.actions.append(A.AddCameraKey(float(self.time)))
         remember(info, "kf_add_camera")
 
-    def _key_list(self, state: ViewerState, tl: KeyframeTimeline, track: str) -> None:
+    def _key_list(self, state: ViewerState, tl: KeyframeTimeline, track: A.Track) -> None:
         keys = tl.keys(track)
         if not imgui.tree_node(f"{track.capitalize()} keys ({len(keys)})###kf{track}"):
             return

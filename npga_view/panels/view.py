@@ -28,7 +28,9 @@ class ViewPanel:
     def _camera(self, state: ViewerState, info: AppInfo) -> None:
         """Presets, frame and reset, field of view and roll, rig cameras."""
         cam = state.camera
-        for name, label in (("front", "Front"), ("three_quarter", "3/4"), ("side", "Side"), ("top", "Top")):
+        presets: tuple[tuple[A.PresetName, str], ...] = (("front", "Front"), ("three_quarter", "3/4"), ("side", "Side"),
+                                                         ("top", "Top"))
+        for name, label in presets:
             if imgui.button(label):
                 state.actions.append(A.CameraPreset(name))
             imgui.same_line()

@@ -26,8 +26,10 @@ Full-resolution images are always drawn from every Gaussian.
 
 An unfinished image is finished even if the view changed meanwhile (so complete images keep coming during a
 long drag), unless it is a full-resolution refinement that a new interaction makes pointless: that one is
-dropped. With `enabled=False` every change is drawn at once at full resolution inside the frame (the
-behaviour before budgeting; benchmarks compare both).
+dropped. Which image to start is decided by the pure `draw_plan.plan` (its named states: idle, live,
+refining, waiting for a merge); this class gathers its inputs and carries it out. (The behaviour before
+budgeting, every change drawn at once in full, lives in the benchmark that compares both:
+npga_view/cli/bench_window.py.)
 """
 
 from __future__ import annotations
@@ -37,8 +39,13 @@ import time
 from dataclasses import dataclass
 
 from npga_core.camera.cameras import Camera
+from npga_view.rendering.draw_plan import FrameState, ImageInfo, PlanInputs, Source, Target, plan
 from npga_view.rendering.live_detail import LiveDetail
 from npga_view.rendering.renderer import SplatRenderer, camera_key
+
+SMOOTHING = 0.2  # weight of the newest figure in the smoothed UI and overshoot times
+SCALE_STEP = (0.6, 1.6)  # the live scale changes by at most these factors per image
+FIRST_LIVE_SCALE = 0.5  # the live scales before any image was measured
 
 
 def scaled_camera(camera: Camera, scale: float) -> Camera:
@@ -52,19 +59,22 @@ def scaled_camera(camera: Camera, scale: float) -> Camera:
 
 @dataclass
 class _Image:
-    target: tuple  # (camera key at full resolution, mode, content version)
+    target: Target
     scale: float
     exact_content: bool  # the cloud drawn was the exact pose (not a preview)
-    live: bool = False  # drawn at the live scale while the view changed
-    renderer: SplatRenderer | None = None  # who draws it: the full cloud's renderer or the merged cloud's
+    live: bool
+    renderer: SplatRenderer  # who draws it: the full cloud's renderer or the merged cloud's
+
+    def info(self, full: SplatRenderer) -> ImageInfo:
+        return ImageInfo(self.target, self.scale, self.exact_content, self.live, self.renderer is not full)
 
 
 class DrawScheduler:
     """See the module docstring. `frame()` once per UI frame; `status` and `scale` describe the shown image."""
 
     def __init__(self, renderer: SplatRenderer, budget_ms: float = 25.0, interactive_ms: float = 120.0,
-                 min_scale: float = 0.2, settle_s: float = 0.3, enabled: bool = True,
-                 lod: LiveDetail | None = None, lod_wait_ms: float = 200.0, lod_interactive_ms: float = 40.0):
+                 min_scale: float = 0.2, settle_s: float = 0.3, lod: LiveDetail | None = None,
+                 lod_wait_ms: float = 200.0, lod_interactive_ms: float = 40.0):
         self.renderer = renderer
         self.lod = lod
         self.lod_wait_ms = lod_wait_ms
@@ -76,13 +86,12 @@ class DrawScheduler:
         self.interactive_ms = interactive_ms
         self.min_scale = min_scale
         self.settle_s = settle_s
-        self.enabled = enabled
-        self.interactive_scale = 0.5  # the scale for live images, adapted to the measured cost
-        self.lod_scale = 0.5  # the same for live images of the merged cloud
+        self.interactive_scale = FIRST_LIVE_SCALE  # the scale for live images, adapted to the measured cost
+        self.lod_scale = FIRST_LIVE_SCALE  # the same for live images of the merged cloud
         self._shown: _Image | None = None
         self._job: _Image | None = None
         self._job_t0 = 0.0
-        self._target: tuple | None = None
+        self._target: Target | None = None
         self._view: tuple | None = None  # camera and mode of the last frame
         self._last_change = -math.inf  # when the camera or mode last changed
         self._frame_end: float | None = None
@@ -97,6 +106,7 @@ class DrawScheduler:
         self.last_image_wall_ms = 0.0  # wall time from its start to its end (spans UI frames)
         self._live_wall_ms: list[float | None] = [None, None]  # that of the last live image: full cloud, merged
         self.images = 0  # finished images so far
+        self.last_plan = FrameState.IDLE  # what the last frame decided (draw_plan.FrameState)
 
     # ----------------------------------------------------------------------------------------- state
     @property
@@ -116,14 +126,14 @@ class DrawScheduler:
         return "preview"
 
     @property
-    def shown_target(self) -> tuple | None:
+    def shown_target(self) -> Target | None:
         """(camera key, mode, content version) of the image on screen."""
         return None if self._shown is None else self._shown.target
 
     @property
     def shown_version(self) -> int:
         """Content version of the image on screen (-1 before the first)."""
-        return -1 if self._shown is None else self._shown.target[2]
+        return -1 if self._shown is None else self._shown.target.version
 
     @property
     def settled(self) -> bool:
@@ -176,7 +186,7 @@ class DrawScheduler:
         frame_start = time.perf_counter()
         if self._frame_end is not None:
             gap = max(0.0, (frame_start - self._frame_end) * 1e3 - self._outside_ms)
-            self.ui_ms = gap if not self.ui_ms else 0.8 * self.ui_ms + 0.2 * gap
+            self.ui_ms = gap if not self.ui_ms else (1 - SMOOTHING) * self.ui_ms + SMOOTHING * gap
         self._outside_ms = 0.0
         self._given_ms = None
         try:
@@ -185,7 +195,7 @@ class DrawScheduler:
             self._frame_end = time.perf_counter()
             if self._given_ms is not None and not math.isinf(self._given_ms):
                 over = max(0.0, (self._frame_end - frame_start) * 1e3 - self._given_ms)
-                self.over_ms = 0.8 * self.over_ms + 0.2 * over
+                self.over_ms = (1 - SMOOTHING) * self.over_ms + SMOOTHING * over
 
     def drew_outside(self, ms: float) -> None:
         """Drawing done elsewhere in this UI frame within `frame_budget` (the refinement's latent pass): not
@@ -196,7 +206,7 @@ class DrawScheduler:
                now: float | None, frame_start: float) -> bool:
         now = frame_start if now is None else now
         key = camera_key(camera)
-        target = (key, mode, content_version)
+        target = Target(key, mode, content_version)
         self._target = target
         if (key, mode) != self._view:  # a camera move is an interaction; a new pose alone is not
             if self._view is not None and self._shown is not None:
@@ -204,66 +214,61 @@ class DrawScheduler:
             self._view = (key, mode)
         live = interacting or (now - self._last_change) < self.settle_s
         self._live = interacting  # (not the settle time: a live image is refined once it has passed)
-        if not self.enabled:
-            if self._shown is not None and self._shown.target == target and self._shown.scale >= 1.0:
-                return False
-            self._start(camera, mode, _Image(target, 1.0, exact_content), now)
-            return self._continue(math.inf, frame_start)
         job = self._job
         if job is not None and not job.renderer.drawing:  # dropped (another pass re-ran the pre-pass)
             self._job = job = None
         if job is not None and job.target != target and live and not job.live:
             job.renderer.cancel_draw()  # a full-resolution refinement of a view the person has already left
             self._job = job = None
-        if job is None:
-            shown = self._shown
-            source, want, draw = self.renderer, (self.interactive_scale if live else 1.0), target
-            # live images from the merged cloud where an image of the full cloud does not fit in the budget at full
-            # resolution (on a GPU it does: no merged cloud there)
-            costly = self.full_image_ms is not None and self.full_image_ms > self.lod_above_ms
-            lod = self.lod if live and costly and self.lod is not None and shown is not None else None
-            merged = lod.request(content_version) if lod is not None else None
-            if merged is not None:
-                source, want = merged, self.lod_scale
-            elif lod is not None and shown.target[2] < lod.uploaded_version < content_version:
-                # the pose changes faster than it is merged (playback, a slider): the newest merged pose, newer
-                # than the one on screen, labelled a preview (its sequence frame is the one counted as shown)
-                source, want, draw = lod.renderer, self.lod_scale, (key, mode, lod.uploaded_version)
-                exact_content = False
-            stale = shown is None or shown.target != target or shown.exact_content != exact_content
-            # while live, a live image of this very target stays (the adapted scale moving a little is no reason
-            # to draw it again: that only took the cores from the exact pose being computed)
-            if stale or (shown.scale < want and not (live and shown.live)):
-                steady = shown is not None and shown.target[2] == content_version
-                if lod is not None and source is self.renderer and self._wait_for_merge(content_version, now, steady):
-                    return False  # the merged cloud of this pose is nearly there: cheaper than the full one
-                if shown is None:  # first image: as fast as possible, refined right after
-                    want = self.interactive_scale
-                self._lod_wait = None
-                self._start(camera, mode, _Image(draw, want, exact_content, live=live or shown is None,
-                                                 renderer=source), now)
+        if job is None and not self._plan_and_start(camera, target, live, exact_content, now):
+            return False
         if self._job is None:
             return False
         merged = self._job.renderer is not self.renderer
         self._given_ms = self.frame_budget(live, merged)
         return self._continue(self._given_ms, frame_start)
 
-    def _wait_for_merge(self, version: int, now: float, steady: bool) -> bool:
-        """Whether to wait for the merged cloud of `version` rather than draw the full one: while its merge is on
-        its way, up to `lod_wait_ms` since the first frame that waited (for any version: poses that change
-        faster than they are merged must not keep the view waiting). For a new pose (one image, not an orbit)
-        only as long as the merge and its image come sooner than a live image of the full cloud would (a large
-        avatar's merge can take longer than that)."""
-        if self.lod is None or not self.lod.usable() or not self.lod.pending(version):
+    def _plan_inputs(self, target: Target, live: bool, exact_content: bool,
+                     now: float) -> tuple[PlanInputs, SplatRenderer | None]:
+        """The inputs of `plan` for this frame, and the merged cloud's renderer if it is ready. Asks for the merge
+        of this pose (LiveDetail.request) only where a merged image could be drawn, as the plan will."""
+        shown = self._shown
+        # live images from the merged cloud where an image of the full cloud does not fit in the budget at full
+        # resolution (on a GPU it does: no merged cloud there)
+        costly = self.full_image_ms is not None and self.full_image_ms > self.lod_above_ms
+        lod = self.lod if live and costly and shown is not None else None
+        merged = lod.request(target.version) if lod is not None else None
+        pending = lod is not None and lod.usable() and lod.pending(target.version)
+        walls = (self._live_wall_ms[0], self._live_wall_ms[1])
+        inputs = PlanInputs(
+            target, live, exact_content, None if shown is None else shown.info(self.renderer),
+            self.interactive_scale, self.lod_scale, use_lod=lod is not None, merged_ready=merged is not None,
+            merged_version=lod.uploaded_version if lod is not None else -1, merge_pending=pending,
+            # (how long merges take matters only when both live images were measured)
+            merge_ms=lod.merge_ms if lod is not None and pending and None not in walls else 0.0,
+            lod_wait_ms=self.lod_wait_ms,
+            live_wall_ms=walls,
+            waited_ms=None if self._lod_wait is None else (now - self._lod_wait) * 1e3)
+        return inputs, merged
+
+    def _plan_and_start(self, camera: Camera, target: Target, live: bool, exact_content: bool, now: float) -> bool:
+        """Decide (`plan`) and start the image it asks for; False when the frame waits for a merge."""
+        inputs, merged = self._plan_inputs(target, live, exact_content, now)
+        decision = plan(inputs)
+        self.last_plan = decision.state
+        if decision.state is FrameState.WAITING_FOR_MERGE:
+            if self._lod_wait is None:
+                self._lod_wait = now
             return False
-        bound = self.lod_wait_ms
-        if not steady and self._live_wall_ms[0] is not None and self._live_wall_ms[1] is not None:
-            bound = min(bound, self._live_wall_ms[0] - self._live_wall_ms[1])
-            if self.lod.merge_ms > bound:
-                return False
-        if self._lod_wait is None:
-            self._lod_wait = now
-        return (now - self._lod_wait) * 1e3 < bound
+        if decision.draw is None:
+            return True
+        renderer = merged if decision.source is Source.MERGED else None
+        if decision.source is Source.MERGED_BEHIND and self.lod is not None:
+            renderer = self.lod.renderer
+        self._lod_wait = None
+        self._start(camera, target.mode, _Image(decision.draw, decision.scale, decision.exact_content,
+                                                decision.live, renderer or self.renderer), now)
+        return True
 
     def frame_budget(self, live: bool, merged: bool = False) -> float:
         """Milliseconds of drawing per UI frame: `budget_ms` while the view changes, and for images of the merged
@@ -280,19 +285,19 @@ class DrawScheduler:
         return self.budget_ms
 
     def _start(self, camera: Camera, mode: str, image: _Image, now: float) -> None:
-        if image.renderer is None:
-            image.renderer = self.renderer
         image.renderer.begin_draw(scaled_camera(camera, image.scale), mode)
         self._job = image
         self._job_t0 = time.perf_counter()  # (wall time; `now` may be a test's clock)
 
     def _continue(self, budget_ms: float, frame_start: float) -> bool:
         """Draw until `budget_ms` after `frame_start` is spent (the pre-pass of a new image counts)."""
-        r = self._job.renderer
+        job = self._job
+        assert job is not None
+        r = job.renderer
         left = budget_ms - (time.perf_counter() - frame_start) * 1e3
         if not r.continue_draw(max(left, 1.0)):
             return False
-        job, self._job = self._job, None
+        self._job = None
         t = r.last_timings
         self.last_image_ms = t.get("draw", 0.0) + t.get("sort", 0.0) + t.get("preprocess", 0.0)
         self.last_image_wall_ms = (time.perf_counter() - self._job_t0) * 1e3
@@ -311,7 +316,8 @@ class DrawScheduler:
             return
         full = job.renderer is self.renderer
         factor = math.sqrt((self.interactive_ms if full else self.lod_interactive_ms) / image_ms)
-        new = round(min(1.0, max(self.min_scale, job.scale * min(1.6, max(0.6, factor)))), 3)
+        lo, hi = SCALE_STEP
+        new = round(min(1.0, max(self.min_scale, job.scale * min(hi, max(lo, factor)))), 3)
         if full:
             self.interactive_scale = new
         else:
