@@ -284,7 +284,7 @@ class ViewerApp:
     def open_sequence(self, path: str) -> bool:
         """Load a sequence; refused (with both dimensions) if it does not fit the avatar."""
         try:
-            seq = load_sequence(path)
+            seq = load_sequence(path, basis=None if self.avatar is None else self.avatar.blendshapes)
             if self.avatar is None or self.avatar.code_dim == 0:
                 raise AvatarFileError(path, "open an animatable avatar first (this one has no dynamics)")
             seq.check_dim(self.avatar.code_dim, path)
