@@ -1,13 +1,15 @@
-"""Expression: sliders along the top-k PCA directions (in std), reset, random, from frame, presets."""
+"""Expression: sliders along the top-k PCA directions (in std), reset, random, from frame, presets, the pad."""
 
 from __future__ import annotations
 
 from imgui_bundle import imgui
 
+from npga_view.panels.expression_pad import ExpressionPad
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import MAX_SLIDERS, ViewerState
 
 _ui = {"preset_name": "my expression"}
+pad = ExpressionPad()
 
 
 def draw(state: ViewerState, info: AppInfo) -> None:
@@ -49,3 +51,4 @@ def draw(state: ViewerState, info: AppInfo) -> None:
         if imgui.button("Save preset"):
             state.actions.append(("save_preset", _ui["preset_name"].strip()))
         imgui.tree_pop()
+    pad.draw(state, info)
