@@ -8,6 +8,7 @@ from __future__ import annotations
 
 import ctypes
 import math
+import os
 import sys
 import time
 import warnings
@@ -25,16 +26,18 @@ from npga_core.model.avatar import Avatar
 from npga_core.model.gaussians import PosedGaussians
 from npga_core.posing.engine import PoseEngine
 from npga_core.posing.headpose import has_head_pose, head_transform, posed_camera
-from npga_view import panels
+from npga_view.actions import Dispatcher
 from npga_view.controllers.actions import ActionController
 from npga_view.controllers.bake import BakeController
 from npga_view.controllers.editing import EditController, highlight
-from npga_view.controllers.playback import Playback
 from npga_view.controllers.posing import PoseController
 from npga_view.controllers.recording import Recorder
 from npga_view.controllers.refining import RefineController
+from npga_view.controllers.sequence_codes import SequenceCodes
 from npga_view.imgui_glfw import glfw, imgui
-from npga_view.panels.files import AVATAR_EXT
+from npga_view.keys import all_key_names, bindings_for
+from npga_view.panels import Panels
+from npga_view.panels.files import FilesPanel, open_action
 from npga_view.panels.info import AppInfo
 from npga_view.rendering.factory import create_renderer
 from npga_view.rendering.gl import release_current_egl, window_context
@@ -45,6 +48,7 @@ from npga_view.rendering.scheduler import DrawScheduler
 from npga_view.state import MAX_SLIDERS, ViewerState
 
 SIDE_PANEL = 400  # logical pixels
+_KEY_NAMES = sorted(all_key_names())  # the keys npga_view/keys.py binds (imgui.Key member names)
 INSPECT_INFO_LIVE_S = 0.5  # seconds between the Inspect panel's figures while the view changes
 
 
@@ -111,7 +115,6 @@ class ViewerApp:
         self.avatar: Avatar | None = None
         self.engine: PoseEngine | None = None
         self.sequence: ExpressionSequence | None = None
-        self.playback: Playback | None = None
         self._colouring = None  # legend of the current Inspect colour mode
         self._inspect_info_due = False
         self._inspect_info_t = -math.inf  # when the Inspect panel's figures were last computed
@@ -120,17 +123,24 @@ class ViewerApp:
         self.frames = 0
         self.should_close = False
         self._posed: PosedGaussians | None = None  # a copy of the cloud on screen (before highlighting)
+        # controllers, each built after what it is handed
         self.edits = EditController(self, self.code_for_keyframe)
-        self.poses = PoseController(self, bake_usable=lambda: self.bakes.usable(),
-                                    keyframe_code=self.edits.keyframe_code, playback_previews=not self.legacy)
-        self.bakes = BakeController(self.state, lambda: self.engine, self.poses.sequence_codes, self.poses.bake_key)
+        self.sequence_codes = SequenceCodes(self.state, lambda: self.sequence)
+        self.bakes = BakeController(self.state, lambda: self.engine, self.sequence_codes)
+        self.poses = PoseController(self, self.sequence_codes, self.bakes, keyframe_code=self.edits.keyframe_code,
+                                    playback_previews=not self.legacy)
         self.recorder = Recorder(lambda: self.read_window(viewport_only=True))
         self.actions = ActionController(self, self.poses, self.bakes, self._toggle_recording)
         self.actions.load_presets()
+        # every action type -> its controller's handler (npga_view/actions.py); strict in tests
+        self.dispatcher = Dispatcher()
+        self.dispatcher.register(self.actions.handlers())
+        self.dispatcher.register(self.edits.handlers())
+        self.panels = Panels(files=FilesPanel(browse=os.getcwd()))
         self.inspector: Inspector | None = None
         self._inspect_key: tuple | None = None
         self._click_pos: tuple[float, float] | None = None
-        self.info.keyframes = self.edits.keyframes
+        self._publish_info()
 
     # ------------------------------------------------------------------------------------------ files
     def open_avatar(self, path: str) -> bool:
@@ -152,7 +162,6 @@ class ViewerApp:
             self.engine.close()
             self.engine = None
         self.avatar = avatar
-        self.info.avatar = avatar
         self.state.avatar_path = path if path == "demo" else str(Path(path).resolve())
         ex = avatar.expression
         k = ex.n_components if ex is not None else 0
@@ -171,7 +180,7 @@ class ViewerApp:
             self._start_engine(avatar.source)
             # first pixels at once: the canonical cloud, labelled, until the worker's first pose arrives
             if not self.legacy:
-                self.info.canonical = True
+                self.poses.canonical = True
                 self.show(avatar.cloud.posed_static())
         else:
             self.show(avatar.pose())
@@ -272,7 +281,7 @@ class ViewerApp:
         if source == "frame":
             if self.poses.codes is None:
                 raise ValueError("no sequence frame: open a sequence first")
-            return self.poses.codes[self.info.frame].copy()
+            return self.poses.codes[self.poses.frame].copy()
         if source == "preset":
             if preset in ex.named:
                 return ex.named[preset].copy()
@@ -292,19 +301,16 @@ class ViewerApp:
             self.state.report(str(e))
             return False
         self.sequence = seq
-        self.info.sequence = seq
-        self.playback = Playback(len(seq), seq.fps)
+        self.poses.sequence_opened(len(seq), seq.fps)
         self.state.sequence_path = str(Path(path).resolve())
         self.state.timeline.time_s = 0.0
         self.state.follow_sequence = True
-        self.poses.sequence_closed()
         self._add_recent(path)
         return True
 
     def _close_sequence(self) -> None:
-        self.sequence = self.playback = None
+        self.sequence = None
         self.poses.sequence_closed()
-        self.info.sequence = None
         self.state.sequence_path = None
 
     def _add_recent(self, path: str) -> None:
@@ -313,9 +319,7 @@ class ViewerApp:
             self.state.save_recent()
 
     def _on_drop(self, window, paths) -> None:
-        for p in paths:
-            is_avatar = Path(p).suffix.lower() in AVATAR_EXT and Path(p).is_file()
-            self.state.actions.append(("open_avatar" if is_avatar else "open_sequence", p))
+        self.state.actions.extend(open_action(p) for p in paths)
 
     # ----------------------------------------------------------------------------------------- camera
     def frame_avatar(self, reset: bool = False) -> None:
@@ -351,7 +355,7 @@ class ViewerApp:
         seq = self.sequence
         if seq is not None and self.state.follow_sequence and self.state.timeline.head_pose and has_head_pose(seq):
             shown = self.poses.shown_frame
-            frame = shown if shown is not None else self.info.frame
+            frame = shown if shown is not None else self.poses.frame
             cam = posed_camera(cam, head_transform(seq, frame, relative=not rig))
         return cam
 
@@ -363,7 +367,7 @@ class ViewerApp:
         ww, _ = glfw.get_window_size(self.window)
         scale = fw / max(ww, 1)
         x0 = self._viewport()[0] / scale
-        if io.mouse_pos.x < x0 and not self.edits._drag:
+        if io.mouse_pos.x < x0 and not self.edits.dragging:
             return
         if self.edits.mouse((x0, 0.0), scale):
             return
@@ -388,73 +392,20 @@ class ViewerApp:
             cam.zoom(io.mouse_wheel)
 
     def _keys(self) -> None:
+        """Keys pressed this frame -> actions, by the table in npga_view/keys.py."""
         io = imgui.get_io()
         if io.want_capture_keyboard:
             return
-        cam = self.state.camera
-        k = imgui.Key
-        pressed = imgui.is_key_pressed
-        acts = self.state.actions
-        if io.key_ctrl:
-            if pressed(k.z):
-                acts.append(("edit_redo" if io.key_shift else "edit_undo", None))
-            if pressed(k.a):
-                acts.append(("select_all", None))
-            if pressed(k.i):
-                acts.append(("select_invert", None))
+        pressed = [name for name in _KEY_NAMES if imgui.is_key_pressed(getattr(imgui.Key, name))]
+        if not pressed:
             return
-        if pressed(k.delete) or pressed(k.backspace):
-            acts.append(("edit_delete", None))
-        if pressed(k.escape):
-            acts.append(("select_clear", None))
-        if pressed(k.h):
-            acts.append(("edit_show_all", None) if io.key_alt else ("edit_hide", None))
-        if pressed(k.left_arrow):
-            cam.orbit(-10, 0)
-        if pressed(k.right_arrow):
-            cam.orbit(10, 0)
-        if pressed(k.up_arrow):
-            cam.orbit(0, 10)
-        if pressed(k.down_arrow):
-            cam.orbit(0, -10)
-        if pressed(k.equal) or pressed(k.keypad_add):
-            cam.zoom(1)
-        if pressed(k.minus) or pressed(k.keypad_subtract):
-            cam.zoom(-1)
-        if pressed(k.q):
-            cam.roll -= 5
-        if pressed(k.e):
-            cam.roll += 5
-        if pressed(k.f):
-            self.frame_avatar()
-        if pressed(k.r):
-            self.frame_avatar(reset=True)
-        for key, name in ((k._1, "front"), (k._2, "three_quarter"), (k._3, "side"), (k._4, "top")):
-            if pressed(key):
-                cam.preset(name)
-        if pressed(k.space) and self.sequence is not None:
-            self.state.timeline.playing = not self.state.timeline.playing
-            self.state.follow_sequence = True
-        if pressed(k.comma):
-            self.state.actions.append(("step", -1))
-        if pressed(k.period):
-            self.state.actions.append(("step", 1))
-        if pressed(k.p):
-            self.state.actions.append(("screenshot", None))
-        rig = self.actions.rig
-        if rig and (pressed(k.left_bracket) or pressed(k.right_bracket)):
-            step = 1 if pressed(k.right_bracket) else -1
-            self.state.rig_index = (self.state.rig_index + step) % len(rig)
+        held = frozenset(m for m, on in (("ctrl", io.key_ctrl), ("shift", io.key_shift), ("alt", io.key_alt)) if on)
+        self.state.actions.extend(b.action for b in bindings_for(pressed, held))
 
     # ---------------------------------------------------------------------------------------- actions
     def _run_actions(self) -> None:
         actions, self.state.actions = self.state.actions, []
-        for name, arg in actions:
-            try:
-                if not self.edits.handle(name, arg):
-                    self.actions.run(name, arg)
-            except (AvatarFileError, ValueError, OSError) as e:
-                self.state.report(str(e))
+        self.dispatcher.run_all(actions, self.state.report, expected=(AvatarFileError, ValueError, OSError))
 
     # --------------------------------------------------------------------------------------- drawing
     def pick(self, x: float, y: float) -> int | None:
@@ -479,7 +430,7 @@ class ViewerApp:
     def _interacting(self) -> bool:
         """The view is changing now: a drag or slider, playback, or a pose that will be replaced (a preview
         or the canonical cloud before the first pose). Draws at the live scale meanwhile."""
-        return self._input_active() or self.info.preview or self.info.canonical
+        return self._input_active() or self.poses.preview or self.poses.canonical
 
     def _draw_splats(self) -> None:
         cam = self.current_camera()
@@ -488,7 +439,7 @@ class ViewerApp:
         if self.lod.error:  # a merge failed: say so and draw every Gaussian from now on
             self.state.report(self.lod.error)
             self.lod.error, self.state.merged_live = None, False
-        exact = not (info.preview or info.canonical or info.interpolated)
+        exact = self.poses.exact
         interacting = self._interacting()
         if self.draws.frame(cam, self.state.mode, self.content_version, interacting, exact_content=exact):
             t = self.draws.shown_renderer.last_timings
@@ -534,9 +485,19 @@ class ViewerApp:
             if imgui.button("Dismiss"):
                 self.state.errors = []
             imgui.separator()
-        for panel in panels.SIDE:
+        for panel in self.panels.side:
             panel.draw(self.state, self.info)
         imgui.end()
+
+    def _publish_info(self) -> None:
+        """The display snapshot the panels read this frame, copied from the controllers' own state."""
+        info = self.info
+        info.avatar, info.sequence = self.avatar, self.sequence
+        info.rig_names = list(self.actions.rig)
+        info.recording = self.recorder.recording
+        info.bake, info.bake_state = self.bakes.status, self.bakes.state()
+        self.poses.publish(info)
+        self.edits.publish(info)
 
     def _quiet(self) -> bool:
         """Nothing to draw in this window until something arrives: the view's image is on screen and nothing is
@@ -568,7 +529,7 @@ class ViewerApp:
         self.edits.after_actions()
         self.edits.tick(dt)
         self.poses.update(dt)
-        self.info.bake, self.info.bake_state = self.bakes.status, self.bakes.state()
+        self._publish_info()
         self._refresh_inspect()
         self.ctx.screen.use()
         fw, fh = glfw.get_framebuffer_size(self.window)
@@ -576,7 +537,7 @@ class ViewerApp:
         self.ctx.clear(0.08, 0.08, 0.09, 1.0)
         self._draw_splats()
         if self.state.show_stats:
-            for panel in panels.OVERLAYS:  # after drawing, so that they report this frame's image
+            for panel in self.panels.overlays:  # after drawing, so that they report this frame's image
                 panel.draw(self.state, self.info)
         self.recorder.frame()
         imgui.render()
@@ -603,7 +564,7 @@ class ViewerApp:
         Path(path).parent.mkdir(parents=True, exist_ok=True)
         if not cv2.imwrite(str(path), img[:, :, ::-1]):
             raise OSError(f"{path}: could not write the PNG")
-        self.info.last_screenshot = str(path)
+        self.info.last_screenshot = str(path)  # (display only)
         return str(path)
 
     def load_session(self, path: str) -> None:
@@ -612,14 +573,12 @@ class ViewerApp:
 
     def _toggle_recording(self) -> None:
         try:
-            self.info.recording = self.recorder.toggle(self._viewport()[2:])
+            self.recorder.toggle(self._viewport()[2:])
         except (OSError, ValueError) as e:
-            self.info.recording = False
             self.state.report(f"Record MP4: {e}")
         if self.recorder.error:
             self.state.report(f"Record MP4: {self.recorder.error}")
             self.recorder.error = None
-        self.record_path = self.recorder.path
 
     # ------------------------------------------------------------------------------------------ loop
     def run(self, screenshot: str | None = None, quit_after_frames: int | None = None) -> int:

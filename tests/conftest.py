@@ -68,3 +68,6 @@ def tamper(tmp_path, small_npga) -> Callable[[Callable[[dict, bytearray], None]]
         return write_npga(tmp_path / name, header, bytes(data))
 
     return make
+
+# an action nobody handles, or one with fields of the wrong types, raises in tests (npga_view/actions.py)
+os.environ.setdefault("NPGA_VIEW_STRICT_ACTIONS", "1")

@@ -4,6 +4,7 @@ the latent compositing and its gradient, G's latent block, and the target colour
 
 from __future__ import annotations
 
+import re
 import sys
 from pathlib import Path
 
@@ -20,7 +21,18 @@ from npga_core.model.dynamics import ConditionedMLP, MLPConfig
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from reference_rasterizer import rasterize  # noqa: E402
 
-ICT = Path("/work/shared/data/ict_facekit/ict_facekit_light.npz")
+
+def _find_ict() -> tuple[Path | None, str]:
+    """The ICT-FaceKit npz (--ict is not a test option: $NPGA_ICT_DIR, else beside the checkout), or why not."""
+    from npga_core.demo.ict import find_ict
+
+    try:
+        return find_ict(), ""
+    except FileNotFoundError as e:
+        return None, str(e)
+
+
+ICT, ICT_MISSING = _find_ict()
 
 
 def random_cloud(n: int, seed: int):
@@ -104,7 +116,7 @@ def test_g_latent_block_leaves_the_other_outputs_and_reads_the_hidden_layer() ->
         torch.testing.assert_close(hidden @ g.layers[-1].weight.T + g.layers[-1].bias, old, rtol=1e-4, atol=1e-5)
 
 
-@pytest.mark.skipif(not ICT.is_file(), reason="ICT-FaceKit data not available")
+@pytest.mark.skipif(ICT is None, reason=ICT_MISSING)
 def test_targets_colour_the_surface_like_the_gaussians() -> None:
     """At the neutral face the target's colour at a Gaussian's surface point is the Gaussian's own (SH) colour,
     up to the jitter and cavity interpolation; the colour model reproduces the canonical build exactly."""
@@ -132,3 +144,20 @@ def test_targets_colour_the_surface_like_the_gaussians() -> None:
     want = sh_colour(canon.cloud.sh[face].astype(np.float64), dirs)
     err = np.abs(got - want)
     assert np.median(err) < 0.01 and np.percentile(err, 99) < 0.06
+
+
+def test_missing_ict_kit_says_where_it_looked(tmp_path, monkeypatch) -> None:
+    """No machine-specific default: --ict, then $NPGA_ICT_DIR, then ../shared/data/ict_facekit beside the
+    checkout; a missing kit is one message naming the place looked in and the ways to name another."""
+    from npga_core.demo.ict import ICT_ENV, find_ict, ict_candidates
+
+    with pytest.raises(FileNotFoundError, match=re.escape(f"{tmp_path / 'nothing'} (--ict)") + ".*NPGA_ICT_DIR"):
+        find_ict(tmp_path / "nothing")
+    monkeypatch.setenv(ICT_ENV, str(tmp_path))
+    assert ict_candidates() == [(tmp_path, f"${ICT_ENV}")]
+    with pytest.raises(FileNotFoundError, match=r"\$NPGA_ICT_DIR\)"):
+        find_ict()
+    monkeypatch.delenv(ICT_ENV)
+    (where, how), = ict_candidates()
+    assert how == "beside the checkout" and where == (Path(__file__).resolve().parents[1] / ".." / "shared" / "data"
+                                                      / "ict_facekit").resolve()

@@ -444,10 +444,10 @@ class PanelDriver:
     """Draws one panel per frame in a headless imgui context; `click(widget)` presses and releases the left
     mouse button over a widget whose rectangle the panel remembered."""
 
-    def __init__(self, module, state, info):
+    def __init__(self, panel, state, info):
         from imgui_bundle import imgui
 
-        self.imgui, self.module, self.state, self.info = imgui, module, state, info
+        self.imgui, self.panel, self.state, self.info = imgui, panel, state, info
         self.ctx = imgui.create_context()
         io = imgui.get_io()
         io.set_ini_filename(None)
@@ -465,7 +465,7 @@ class PanelDriver:
         imgui.set_next_window_size(imgui.ImVec2(680, 1380))
         imgui.begin("side")
         imgui.set_next_item_open(True)
-        self.module.draw(self.state, self.info)
+        self.panel.draw(self.state, self.info)
         imgui.end()
         imgui.render()
 
@@ -481,68 +481,73 @@ class PanelDriver:
 
 
 def test_edit_panel_emits_actions_that_apply_carries_out():
-    from npga_view.panels import edit as panel
+    from npga_view import actions as A
+    from npga_view.controllers.edit_actions import apply_edit
+    from npga_view.panels.edit import EditPanel
     from npga_view.panels.info import AppInfo
     from npga_view.state import ViewerState
 
     s = EditSession(small())
     info, state = AppInfo(avatar=s.avatar), ViewerState()
     info.edit = s
-    driver = PanelDriver(panel, state, info)
+    driver = PanelDriver(EditPanel(), state, info)
     try:
         assert {"edit_delete", "edit_undo", "edit_tool_brush"} <= set(info.rects)
         driver.click("edit_tool_brush")
-        assert state.actions == [("select_tool", {"tool": "brush", "mode": "replace", "brush_radius": 20.0})]
+        assert state.actions == [A.SelectTool("brush", "replace", 20.0)]
         state.actions.clear()
         driver.click("edit_delete")  # disabled: nothing selected
         assert state.actions == []
         s.select(np.arange(len(s)) < 30)
         driver.frame()
         driver.click("edit_delete")
-        assert state.actions == [("edit_delete", None)]
-        for name, arg in state.actions:
-            assert panel.apply(s, name, arg)
+        assert state.actions == [A.DeleteSelection()]
+        for action in state.actions:
+            assert apply_edit(s, action)
         state.actions.clear()
         assert len(s) == 270
         driver.frame()
         driver.click("edit_undo")
-        assert state.actions == [("edit_undo", None)]
-        assert panel.apply(s, "edit_undo", None) and len(s) == 300
+        assert state.actions == [A.Undo()]
+        assert apply_edit(s, A.Undo()) and len(s) == 300
     finally:
         driver.close()
 
 
 def test_apply_covers_the_panel_actions(tmp_path):
     from npga_core.camera.cameras import frame_points
-    from npga_view.panels.edit import apply
+    from npga_view import actions as A
+    from npga_view.controllers.edit_actions import EditView, apply_edit
 
     s = EditSession(small())
     cam = frame_points(s.avatar.cloud.means, 100, 150)
     posed = s.avatar.pose()
     steps = [
-        ("select_rect", {"rect": (0, 0, 50, 150), "mode": "replace"}),
-        ("select_lasso", {"polygon": [(0, 0), (100, 0), (100, 150)], "mode": "add"}),
-        ("select_brush", {"centres": [(50, 75)], "radius": 10.0, "mode": "subtract"}),
-        ("select_sphere", {"centre": (0, 0, 0), "radius": 0.2, "mode": "intersect"}),
-        ("select_box", {"lo": (-1, -1, 0), "hi": (1, 1, 1), "mode": "replace"}),
-        ("select_range", {"attribute": "opacity", "lo": 0.0, "hi": 0.9, "mode": "intersect"}),
-        ("select_grow", 1), ("select_shrink", 1), ("select_invert", None), ("select_all", None),
-        ("edit_scale_opacity", 0.5), ("edit_tint", {"rgb": (1, 0, 0), "mode": "blend", "amount": 0.5}),
-        ("edit_set_feature", {"channel": 0, "value": 1.0}), ("edit_scale_feature", {"channel": 1, "factor": 2.0}),
-        ("edit_hide", None), ("edit_show_all", None), ("select_clear", None),
-        ("edit_preview_floaters", {"k": 8, "distance_factor": 1.2, "min_opacity": 0.0}),
-        ("edit_clear_preview", None),
-        ("edit_remove_floaters", {"k": 8, "distance_factor": 1.2, "min_opacity": 0.0, "within_selection": False}),
-        ("edit_undo", None), ("edit_redo", None),
-        ("edit_save", {"path": str(tmp_path / "e.npga"), "overwrite_source": False}),
-        ("edit_export_ply", str(tmp_path / "e.ply")),
+        A.SelectRect((0, 0, 50, 150), "replace"),
+        A.SelectLasso(((0, 0), (100, 0), (100, 150)), "add"),
+        A.SelectBrush(((50, 75),), 10.0, "subtract"),
+        A.SelectSphere((0, 0, 0), 0.2, "intersect"),
+        A.SelectBox((-1, -1, 0), (1, 1, 1), "replace"),
+        A.SelectRange("opacity", 0.0, 0.9, "intersect"),
+        A.SelectGrow(1), A.SelectShrink(1), A.SelectInvert(), A.SelectAll(),
+        A.ScaleSelectionOpacity(0.5), A.TintSelection((1, 0, 0), "blend", 0.5),
+        A.SetSelectionFeature(0, 1.0), A.ScaleSelectionFeature(1, 2.0),
+        A.HideSelection(), A.ShowAllHidden(), A.SelectClear(),
+        A.PreviewFloaters(8, 1.2, 0.0),
+        A.ClearFloaterPreview(),
+        A.RemoveFloaters(8, 1.2, 0.0, within_selection=False),
+        A.Undo(), A.Redo(),
+        A.SaveEdits(str(tmp_path / "e.npga"), False),
+        A.ExportPly(str(tmp_path / "e.ply")),
     ]
-    for name, arg in steps:
-        assert apply(s, name, arg, camera=cam, means=posed.means), name
-    assert not apply(s, "select_tool", {"tool": "rect"}) and not apply(s, "open_avatar", "x")
+    for action in steps:
+        assert apply_edit(s, action, EditView(cam, posed.means)), action
+    assert not apply_edit(s, A.SelectTool("rect")) and not apply_edit(s, A.OpenAvatar("x"))
+    with pytest.raises(A.ActionError, match="SelectSphere.radius"):
+        apply_edit(s, A.SelectSphere((0, 0, 0), "big"))  # a field of the wrong type is an error, not a no-op
     names = [c.name for c in s.history.undo_stack]
     assert names[-4:-1] == ["Scale feature 1 x2", "Hide 300", "Show all"]  # hide deselected: clear was no step
     assert names[-1].startswith("Remove ") and len(s) < 300
     assert len(load_avatar(tmp_path / "e.npga")) == len(s) and (tmp_path / "e.ply").is_file()
     with pytest.raises(ValueError, match="camera"):
-        apply(s, "select_rect", {"rect": (0, 0, 1, 1)})
+        apply_edit(s, A.SelectRect((0, 0, 1, 1)))

@@ -14,6 +14,7 @@ from npga_core.files.checkpoint import save_avatar
 from npga_core.files.loading import DEMO_AVATAR
 from npga_core.files.sequences import ExpressionSequence
 from npga_core.model.synthetic import make_synthetic_avatar
+from npga_view import actions as A
 
 from .xvfb import start_xvfb, stop
 
@@ -135,6 +136,36 @@ def drag(app, name, fraction):
     app.step()
 
 
+def test_every_action_type_has_a_handler_and_keys_send_actions(app, avatar_path):
+    """The window's dispatcher handles every action type (a new one without a handler fails here), and a key
+    press goes through the key table: `f` frames the avatar (its target moves), Ctrl+Z undoes a hide."""
+    from imgui_bundle import imgui
+
+    assert set(app.dispatcher.table) == set(A.action_types())
+    assert app.dispatcher.strict  # tests/conftest.py: an unknown action raises here
+    assert app.open_avatar(avatar_path)
+    settle(app)
+    app.state.camera.target = [5.0, 5.0, 5.0]
+    io = imgui.get_io()
+    io.add_key_event(imgui.Key.f, True)
+    app.step()
+    io.add_key_event(imgui.Key.f, False)
+    app.step()
+    assert max(abs(v) for v in app.state.camera.target) < 5.0
+    app.state.actions += [A.SelectAll(), A.HideSelection()]
+    app.step()
+    assert app.edits.session.hidden.all()
+    io.add_key_event(imgui.Key.mod_ctrl, True)
+    io.add_key_event(imgui.Key.left_ctrl, True)
+    io.add_key_event(imgui.Key.z, True)
+    app.step()
+    io.add_key_event(imgui.Key.z, False)
+    io.add_key_event(imgui.Key.left_ctrl, False)
+    io.add_key_event(imgui.Key.mod_ctrl, False)
+    app.step()
+    assert not app.edits.session.hidden.any()
+
+
 def test_open_move_slider_and_see_pixels_change(app, avatar_path):
     assert app.open_avatar(avatar_path)
     settle(app)
@@ -149,8 +180,6 @@ def test_open_move_slider_and_see_pixels_change(app, avatar_path):
 
 
 def test_load_sequence_through_the_ui_and_play(app, avatar_path, tmp_path):
-    from npga_view.panels import files
-
     assert app.open_avatar(avatar_path)
     ex = app.avatar.expression
     t = np.arange(50)
@@ -158,7 +187,7 @@ def test_load_sequence_through_the_ui_and_play(app, avatar_path, tmp_path):
     seq_path = tmp_path / "wave.npzseq"
     ExpressionSequence(codes.astype(np.float32), 25.0, "wave").save(seq_path)
     settle(app)
-    files._ui["path"] = str(seq_path)
+    app.panels.files.path = str(seq_path)
     click(app, "open_sequence")
     assert app.sequence is not None and len(app.sequence) == 50, app.state.errors
     first = app.read_window(viewport_only=True)
@@ -168,7 +197,7 @@ def test_load_sequence_through_the_ui_and_play(app, avatar_path, tmp_path):
 
     def two_frames_shown() -> bool:  # a condition with a generous bound, not a rate: the machine may be busy
         frames_seen.add(app.poses.shown_frame)
-        return len(frames_seen - {None}) >= 2 and app.playback.achieved_fps() > 0  # two shown while playing
+        return len(frames_seen - {None}) >= 2 and app.poses.playback.achieved_fps() > 0  # two shown while playing
 
     assert run_until(app, two_frames_shown, timeout=120), ("playback should show several frames", frames_seen)
     later = app.read_window(viewport_only=True)
@@ -233,9 +262,9 @@ def test_bad_files_show_in_the_ui_and_the_app_keeps_running(app, avatar_path, tm
     assert app.open_avatar(avatar_path)
     bad = tmp_path / "bad.npga"
     bad.write_bytes(b"\x89NPGA\r\n\x1a" + b"\x00" * 4)
-    app.state.actions.append(("open_avatar", str(bad)))
+    app.state.actions.append(A.OpenAvatar(str(bad)))
     np.save(tmp_path / "wrong_dim.npy", np.zeros((10, 64), np.float32))
-    app.state.actions.append(("open_sequence", str(tmp_path / "wrong_dim.npy")))
+    app.state.actions.append(A.OpenSequence(str(tmp_path / "wrong_dim.npy")))
     for _ in range(3):
         app.step()
     errs = " | ".join(app.state.errors)
@@ -299,7 +328,7 @@ def test_drop_files_and_rig_cameras(app, avatar_path, tmp_path):
     serials = ("222200037", "222200038")
     rig = {"world_2_cam": {s: c.world_to_camera.tolist() for s, c in zip(serials, cams, strict=True)}, "intrinsics": k}
     (tmp_path / "camera_params.json").write_text(json.dumps(rig))
-    app.state.actions.append(("load_rig", str(tmp_path / "camera_params.json")))
+    app.state.actions.append(A.LoadRig(str(tmp_path / "camera_params.json")))
     settle(app)
     assert app.info.rig_names == ["222200037", "222200038"] and app.state.rig_index == 0
     front = app.read_window(viewport_only=True)
@@ -317,18 +346,18 @@ def test_record_viewport_to_mp4(app, avatar_path, tmp_path, monkeypatch):
     assert app.open_avatar(avatar_path)
     settle(app)
     started = time.perf_counter()
-    app.state.actions.append(("record", None))
+    app.state.actions.append(A.ToggleRecording())
     app.step()  # starts recording and records this frame
     for _ in range(6):
         time.sleep(0.15)  # a UI at well under 25 fps: the video must last as long as the recording did
         app.state.camera.orbit(3, 0)
         app.step()
     time.sleep(0.15)
-    app.state.actions.append(("record", None))
+    app.state.actions.append(A.ToggleRecording())
     app.step()  # stops before this frame is drawn
     elapsed = time.perf_counter() - started
     assert not app.info.recording and app.recorder.error is None and not app.state.errors
-    with av.open(str(tmp_path / app.record_path)) as c:
+    with av.open(str(tmp_path / app.recorder.path)) as c:
         stream = c.streams.video[0]
         assert stream.codec_context.name == "h264" and stream.codec_context.pix_fmt == "yuv420p"
         frames = list(c.decode(stream))
@@ -408,7 +437,7 @@ def test_inspect_mode_and_pick_in_the_window(app, avatar_path):
     settle(app)
     rec = app.info.inspect.record
     assert rec is not None and app.info.inspect.counts.total == len(app.avatar)
-    app.state.actions.append(("inspect_focus", idx))
+    app.state.actions.append(A.FocusGaussian(idx))
     app.step()
     np.testing.assert_allclose(app.state.camera.target, app._posed.means[idx], atol=1e-6)
 
@@ -435,7 +464,7 @@ def test_sequence_head_pose_moves_the_view(app, tmp_path):
     settle(app)
     np.testing.assert_allclose(app.current_camera().world_to_camera, base, atol=1e-9)  # frame 0: identity
     unmoved = app.read_window(viewport_only=True)
-    app.state.actions.append(("step", 5))
+    app.state.actions.append(A.StepFrames(5))
     assert run_until(app, lambda: app.poses.shown_frame == 5)
     settle(app)
     want = base @ head_transform(app.sequence, 5)
@@ -457,13 +486,13 @@ def test_sequence_head_pose_moves_the_view(app, tmp_path):
 # --- frame-budgeted drawing (#14): behaviour in the real window, never rates ------------------------------------
 def test_first_image_is_the_labelled_canonical_cloud_then_the_exact_pose(app, avatar_path):
     assert app.open_avatar(avatar_path)
-    assert app.info.canonical  # shown at once, before the pose worker has answered
+    assert app.poses.canonical  # shown at once, before the pose worker has answered
     assert run_until(app, lambda: app.draws.images >= 1)
     first_pixels = app.read_window(viewport_only=True)
     assert first_pixels.max() > 40  # the avatar, not a black view
-    if app.info.canonical:
+    if app.poses.canonical:
         assert app.draws.status == "preview"
-    assert run_until(app, lambda: not app.info.canonical and app.draws.status == "exact", timeout=120)
+    assert run_until(app, lambda: not app.poses.canonical and app.draws.status == "exact", timeout=120)
     assert app.draws.scale == 1.0
 
 
@@ -560,7 +589,7 @@ def test_an_idle_window_waits_for_input_instead_of_spinning(app, avatar_path, mo
     app.state.follow_sequence = False
     app.state.sliders[0] += 1.0
     assert run_until(app, lambda: app.draws.shown_version != version and app.draws.settled
-                     and not app.info.preview and app.engine.pending is None, timeout=120)
+                     and not app.poses.preview and app.engine.pending is None, timeout=120)
     # playback is never quiet
     codes = np.repeat(app.avatar.expression.mean[None], 50, axis=0).astype(np.float32)
     ExpressionSequence(codes, 25.0, "still").save(tmp_path / "still.npzseq")

@@ -25,6 +25,7 @@ def display():
 def test_window_reports_hostile_files_and_stays_up(display, tmp_path, monkeypatch):
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    from npga_view import actions as A
     from npga_view.app import ViewerApp
 
     avatar = make_synthetic_avatar(500, seed=4)
@@ -49,12 +50,14 @@ def test_window_reports_hostile_files_and_stays_up(display, tmp_path, monkeypatc
         ("load_rig", rigs["image_size 10^9"]), ("load_rig", rigs["char device (/dev/zero)"]),
         ("open_avatar", avatars["fifo"]), ("open_avatar", avatars["header claims 10^12 Gaussians"]),
     ]
+    ACTIONS = {"open_sequence": A.OpenSequence, "load_session": A.LoadSession, "kf_load": A.LoadKeyframes,
+               "load_rig": A.LoadRig, "open_avatar": A.OpenAvatar}
     app = ViewerApp(900, 700, vsync=False, threads=1, remember_recent=False)
     try:
         assert app.open_avatar(str(good))
         for name, path in actions:
             app.state.errors = []
-            app.state.actions.append((name, str(path)))
+            app.state.actions.append(ACTIONS[name](str(path)))
             for _ in range(3):
                 app.step()
             assert not app.should_close and app.window is not None, name

@@ -392,9 +392,12 @@ def panel_frame():
 
 
 def test_inspect_panel_draws_every_mode_and_writes_settings(avatar, inspector, panel_frame) -> None:
-    from npga_view.panels import inspect as panel
+    from npga_view import actions as A
     from npga_view.panels.info import AppInfo
+    from npga_view.panels.inspect import InspectPanel
     from npga_view.state import ViewerState
+
+    panel = InspectPanel()
 
     frame, io = panel_frame
     state, info = ViewerState(), AppInfo(avatar=avatar)
@@ -423,7 +426,7 @@ def test_inspect_panel_draws_every_mode_and_writes_settings(avatar, inspector, p
     click("inspect_hist_filter")
     assert state.inspect.hist_action == "filter" and state.inspect.hist_range is not None
     click("inspect_focus")
-    assert state.actions == [("inspect_focus", 3)]
+    assert state.actions == [A.FocusGaussian(3)]
     click("inspect_pick_on_click")
     assert state.inspect.pick_on_click
     modes = ["rgb", "features", "feature:1", "latent", "latent:2", "offset", "laplacian", "sensitivity", "opacity",

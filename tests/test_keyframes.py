@@ -260,36 +260,37 @@ def test_render_timeline_cli(tmp_path, capsys):
 
 def test_keyframe_panel_and_apply(tmp_path):
     from npga_core.model.synthetic import make_synthetic_avatar
-    from npga_view.panels import keyframes as panel
+    from npga_view import actions as A
+    from npga_view.controllers.edit_actions import apply_keyframe
     from npga_view.panels.info import AppInfo
+    from npga_view.panels.keyframes import KeyframesPanel
     from npga_view.state import ViewerState
 
     from .test_edits import PanelDriver
 
     avatar = make_synthetic_avatar(50, hidden=16, depth=2, code_dim=6, n_components=3, seed=1)
     info, state = AppInfo(avatar=avatar), ViewerState()
-    driver = PanelDriver(panel, state, info)
+    driver = PanelDriver(KeyframesPanel(), state, info)
     try:
         assert "kf_play" not in info.rects  # no timeline yet: only "new" and "load"
         info.keyframes = timeline(d=6)
         info.keyframe_time = 1.5
         driver.frame()
         driver.click("kf_add_camera")
-        assert state.actions == [("kf_add_camera", {"time": 1.5})]
+        assert state.actions == [A.AddCameraKey(1.5)]
         state.actions.clear()
         driver.click("kf_add_expression")
-        assert state.actions == [("kf_add_expression", {"time": 1.5, "source": "sliders", "preset": None,
-                                                        "interp": "smooth"})]
+        assert state.actions == [A.AddExpressionKey(1.5, "sliders", None, "smooth")]
         state.actions.clear()
         driver.click("kf_play")
-        assert state.actions == [("kf_play", True)]
+        assert state.actions == [A.PlayKeyframes(True)]
     finally:
         driver.close()
     tl = info.keyframes
-    assert panel.apply(tl, "kf_update", {"track": "expression", "index": 0, "changes": {"time": 5.0, "hold": 1.0}})
+    assert apply_keyframe(tl, A.UpdateKey("expression", 0, {"time": 5.0, "hold": 1.0}))
     assert tl.expression[-1].time == 5.0 and tl.duration == 6.0
-    assert panel.apply(tl, "kf_remove", {"track": "camera", "index": 0}) and len(tl.camera) == 3
-    assert panel.apply(tl, "kf_save", str(tmp_path / "k.json"))
+    assert apply_keyframe(tl, A.RemoveKey("camera", 0)) and len(tl.camera) == 3
+    assert apply_keyframe(tl, A.SaveKeyframes(str(tmp_path / "k.json")))
     assert len(KeyframeTimeline.load(tmp_path / "k.json").expression) == 6
-    assert panel.apply(tl, "kf_clear", None) and tl.is_empty()
-    assert not panel.apply(tl, "kf_seek", 1.0)
+    assert apply_keyframe(tl, A.ClearKeyframes()) and tl.is_empty()
+    assert not apply_keyframe(tl, A.SeekKeyframes(1.0))

@@ -178,7 +178,8 @@ def test_native_open_dialog_answers_into_an_action(tmp_path):
     scripts/install.sh: zenity brings GTK and WebKit), else skipped."""
     if not sys.platform.startswith("linux") or not (shutil.which("zenity") and shutil.which("xdotool")):
         pytest.skip("needs Linux with zenity and xdotool (apt-get install zenity xdotool)")
-    from npga_view.panels import files
+    from npga_view.actions import OpenAvatar
+    from npga_view.panels.files import FilesPanel
     from npga_view.state import ViewerState
 
     from .xvfb import start_xvfb, stop
@@ -192,8 +193,9 @@ def test_native_open_dialog_answers_into_an_action(tmp_path):
     target = tmp_path / "mine.npga"
     target.write_bytes(b"x")
     state = ViewerState()
+    files = None
     try:
-        files._ui["browse"] = str(tmp_path)
+        files = FilesPanel(browse=str(tmp_path), native=True)
         files.ask_open("open_avatar", "Open an avatar (test)")
         found = subprocess.run(["xdotool", "search", "--sync", "--name", "Open an avatar"], capture_output=True,
                                text=True, timeout=30).stdout.split()
@@ -204,15 +206,15 @@ def test_native_open_dialog_answers_into_an_action(tmp_path):
         time.sleep(1.0)
         subprocess.run(["xdotool", "key", "Return"], check=True, timeout=10)
         end = time.monotonic() + 30
-        while files._ui["dialog"] is not None and time.monotonic() < end:
-            files._poll_dialog(state)
+        while files.dialog is not None and time.monotonic() < end:
+            files.poll_dialog(state)
             time.sleep(0.1)
-        assert state.actions == [("open_avatar", str(target))]
-        assert files._ui["browse"] == str(tmp_path)
+        assert state.actions == [OpenAvatar(str(target))]
+        assert files.browse == str(tmp_path)
     finally:
-        if files._ui["dialog"] is not None:
-            files._ui["dialog"][1].kill()
-            files._ui["dialog"] = None
+        if files is not None and files.dialog is not None:
+            files.dialog[1].kill()
+            files.dialog = None
         if old is None:
             os.environ.pop("DISPLAY", None)
         else:

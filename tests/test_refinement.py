@@ -295,8 +295,10 @@ def panel_frame():
 
 
 def test_view_panel_toggles_raw_and_refined_and_offers_latent_views(avatar, panel_frame):
-    from npga_view.panels import view as panel
     from npga_view.panels.info import AppInfo
+    from npga_view.panels.view import ViewPanel
+
+    panel = ViewPanel()
 
     frame, io = panel_frame
     state, info = ViewerState(), AppInfo(avatar=avatar)

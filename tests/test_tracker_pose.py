@@ -32,6 +32,7 @@ import pytest
 from npga_core.errors import AvatarFileError
 from npga_core.files.loading import load_sequence
 from npga_core.posing.headpose import head_transform
+from npga_view.actions import StepFrames
 
 from .reference_rasterizer import quat_to_rotation
 from .test_gui import app, avatar_path, display, run_until, settle, xserver  # noqa: F401 (window fixtures)
@@ -308,7 +309,7 @@ def test_window_turns_a_mononphm_head_the_right_way(app, avatar_path, tmp_path):
     assert app.open_sequence(str(root))
     settle(app)
     np.testing.assert_allclose(app.current_camera().world_to_camera, base.world_to_camera, atol=1e-9)
-    app.state.actions.append(("step", 1))
+    app.state.actions.append(StepFrames(1))
     assert run_until(app, lambda: app.poses.shown_frame == 1)
     settle(app)
     shot = app.screenshot(str(tmp_path / "turned.png"))

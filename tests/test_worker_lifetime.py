@@ -55,6 +55,7 @@ VIEWER = """
 import json, sys
 import npga_view.app as app_mod
 import npga_view.controllers.editing as editing
+from npga_view.actions import ScaleSelectionOpacity, SelectAll
 from npga_view.cli.main import main
 
 editing.AUTOSAVE_EVERY_S = 1e9  # only the close path may autosave in this test
@@ -64,7 +65,7 @@ def step(self):
     _step(self)
     s = self.edits.session
     if "edit" not in _done and s is not None:
-        self.state.actions += [("select_all", None), ("edit_scale_opacity", 0.5)]
+        self.state.actions += [SelectAll(), ScaleSelectionOpacity(0.5)]
         _done["edit"] = True
     if "told" not in _done and s is not None and s.dirty and self.engine is not None and self.engine.ready:
         s.discard_autosave()

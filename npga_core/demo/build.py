@@ -27,7 +27,7 @@ from npga_core.demo.canonical import FEATURE_DIM, build_canonical
 from npga_core.demo.colors import eyelid_mask, lip_weight
 from npga_core.demo.expression_map import ExpressionMap
 from npga_core.demo.expressions import ExpressionSampler, named_weights
-from npga_core.demo.ict import DEFAULT_ICT_DIR, IctHead, load_ict
+from npga_core.demo.ict import ICT_WHERE, IctHead, load_ict
 from npga_core.demo.readme import DEFAULT_OUT, write_readme
 from npga_core.demo.sampling import interpolate, label_iris, uniform_samples
 from npga_core.demo.sequences import build_sequences
@@ -204,7 +204,7 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--seed", type=int, default=0, help="seed of everything random (default 0)")
     p.add_argument("--out", type=Path, default=DEFAULT_OUT, help=f"output folder (default {DEFAULT_OUT})")
     p.add_argument("--quick", action="store_true", help="small, fast build for testing the pipeline")
-    p.add_argument("--ict", type=Path, default=None, help=f"ICT-FaceKit folder or npz (default {DEFAULT_ICT_DIR})")
+    p.add_argument("--ict", type=Path, default=None, help=f"ICT-FaceKit folder or npz (else: {ICT_WHERE})")
     p.add_argument("--threads", type=int, default=2, help="torch CPU threads of the base stage (default 2)")
     p.add_argument("--refine-threads", type=int, default=1,
                    help="torch CPU threads of the refine stage (default 1: small tensors, measured faster on a "

@@ -14,9 +14,11 @@ from pathlib import Path
 import numpy as np
 import torch
 
-#: Where the kit is looked for when no path is given (override with $NPGA_ICT_DIR).
-DEFAULT_ICT_DIR = Path(os.environ.get("NPGA_ICT_DIR", "/work/shared/data/ict_facekit"))
+ICT_ENV = "NPGA_ICT_DIR"  # the kit's folder (or npz), when no path is given
+#: where the kit is looked for last: this folder next to the checkout (the folder holding pyproject.toml)
+ICT_BESIDE_CHECKOUT = Path("..", "shared", "data", "ict_facekit")
 ICT_FILE = "ict_facekit_light.npz"
+ICT_WHERE = f"pass --ict PATH, set ${ICT_ENV}, or put the kit in {ICT_BESIDE_CHECKOUT.as_posix()} beside the checkout"
 CM = 0.01
 
 #: Gaussian part names of the demo avatar, in part-id order.
@@ -104,13 +106,42 @@ def _fit_eye(points: np.ndarray, iterations: int = 3) -> tuple[np.ndarray, np.nd
     return centre, apex / np.linalg.norm(apex)
 
 
+def checkout_root() -> Path | None:
+    """The checkout this module runs from (the folder holding pyproject.toml), None for an installed wheel."""
+    for parent in Path(__file__).resolve().parents:
+        if (parent / "pyproject.toml").is_file():
+            return parent
+    return None
+
+
+def ict_candidates(path: str | Path | None = None) -> list[tuple[Path, str]]:
+    """Where the kit is looked for, in order, each with how it was named: `path` (--ict) if given, else
+    $NPGA_ICT_DIR if set, else ../shared/data/ict_facekit relative to the checkout."""
+    if path is not None:
+        return [(Path(path), "--ict")]
+    if os.environ.get(ICT_ENV):
+        return [(Path(os.environ[ICT_ENV]), f"${ICT_ENV}")]
+    root = checkout_root()
+    return [] if root is None else [((root / ICT_BESIDE_CHECKOUT).resolve(), "beside the checkout")]
+
+
+def find_ict(path: str | Path | None = None) -> Path:
+    """The kit's npz (see `ict_candidates`); FileNotFoundError saying where it was looked for and how to say
+    where it is."""
+    tried = []
+    for p, how in ict_candidates(path):
+        npz = p / ICT_FILE if p.is_dir() else p
+        if npz.is_file():
+            return npz
+        tried.append(f"{npz} ({how})")
+    where = "; ".join(tried) or "nowhere (no checkout, no $NPGA_ICT_DIR)"
+    raise FileNotFoundError(f"ICT-FaceKit data not found: looked in {where}. {ICT_WHERE}")
+
+
 def load_ict(path: str | Path | None = None) -> IctHead:
-    """Read the kit (a folder holding ict_facekit_light.npz, or the npz itself) and convert to metres."""
-    p = Path(path) if path is not None else DEFAULT_ICT_DIR
-    if p.is_dir():
-        p = p / ICT_FILE
-    if not p.is_file():
-        raise FileNotFoundError(f"ICT-FaceKit data not found at {p} (set $NPGA_ICT_DIR or pass --ict)")
+    """Read the kit (a folder holding ict_facekit_light.npz, or the npz itself; found by `find_ict`) and convert
+    to metres."""
+    p = find_ict(path)
     d = np.load(p, allow_pickle=False)
     verts = d["neutral"].astype(np.float32) * CM
     faces = d["faces"].astype(np.int64)

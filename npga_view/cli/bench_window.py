@@ -28,6 +28,8 @@ from pathlib import Path
 
 import numpy as np
 
+from npga_view.actions import Bake
+
 SIZE = (1360, 900)
 
 
@@ -90,7 +92,7 @@ def _input_event() -> None:
 
 def _exact(app) -> bool:
     eng = app.engine
-    return (app.draws.settled and not app.info.preview and not app.info.canonical
+    return (app.draws.settled and not app.poses.preview and not app.poses.canonical
             and (eng is None or eng.pending is None))
 
 
@@ -181,7 +183,7 @@ def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, sec
             app.open_sequence(sequence)
             out.update(_playback(app, w, seconds, baked=False))
             app.state.timeline.playing = False
-            app.state.actions.append(("bake", None))
+            app.state.actions.append(Bake())
             w.until(lambda: app.bakes.state() == "ready", 300)
             out.update(_playback(app, w, seconds, baked=True))
         return out
@@ -195,15 +197,15 @@ def _playback(app, w: _Watcher, seconds: float, baked: bool) -> dict:
     app.state.follow_sequence = True
     for _ in range(3):  # frames asked for before the start are not counted
         w.step()
-    app.playback.reset_stats()
+    app.poses.playback.reset_stats()
     images, frames0, t0 = 0, app.frames, time.perf_counter()
     while time.perf_counter() - t0 < seconds:
         images += w.step()
     dt = time.perf_counter() - t0
     tl.playing = False
     key = "baked" if baked else "live"
-    return {f"{key}_images_per_s": images / dt, f"{key}_achieved_fps": app.playback.achieved_fps(),
-            f"{key}_ui_fps": (app.frames - frames0) / dt, f"{key}_skipped": app.playback.skipped}
+    return {f"{key}_images_per_s": images / dt, f"{key}_achieved_fps": app.poses.playback.achieved_fps(),
+            f"{key}_ui_fps": (app.frames - frames0) / dt, f"{key}_skipped": app.poses.playback.skipped}
 
 
 def _synthetic(n: int, folder: Path) -> tuple[str, str]:

@@ -10,6 +10,7 @@ import argparse
 import sys
 
 from npga_core.errors import AvatarFileError
+from npga_view.actions import Bake, LoadRig
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
@@ -89,9 +90,9 @@ def _open_and_run(args: argparse.Namespace, w: int, h: int, holder: dict) -> int
             app.state.timeline.playing = bool(args.play)
             app.state.timeline.bake_budget_mb = args.bake_budget_mb
             if args.bake:
-                app.state.actions.append(("bake", None))
+                app.state.actions.append(Bake())
         if args.rig:
-            app.state.actions.append(("load_rig", args.rig))
+            app.state.actions.append(LoadRig(args.rig))
         if args.session:
             try:
                 app.load_session(args.session)

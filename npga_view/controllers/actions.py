@@ -1,8 +1,6 @@
-"""`ActionController`: runs what the panels and keys ask for (``state.actions``) that is not an edit.
-
-Panels never call the app: they append ``(name, argument)`` to ``state.actions``; once per frame the app
-hands the list here (edits and keyframes go to the `EditController` first). Also: sessions and the user's
-expression presets, which live in the config folder.
+"""`ActionController`: carries out the actions (npga_view/actions.py) that are not edits or keyframes: files,
+camera, expression, playback, bake, output, sessions, rig. Also the user's expression presets, which live in
+the config folder.
 """
 
 from __future__ import annotations
@@ -19,6 +17,7 @@ from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
 from npga_core.files.rig import load_rig
 from npga_core.files.untrusted import json_dict, json_number, read_json
+from npga_view import actions as A
 from npga_view.controllers.bake import BakeController
 from npga_view.controllers.host import ViewerHost
 from npga_view.controllers.posing import PoseController
@@ -26,7 +25,8 @@ from npga_view.state import MAX_SESSION_BYTES, config_dir
 
 
 class ActionController:
-    """Owned by the app; `run(name, arg)` performs one action. `toggle_recording` is the app's recorder switch."""
+    """Owned by the app; `handlers()` is its table of action type -> method (see npga_view/actions.py).
+    `toggle_recording` is the app's recorder switch; the loaded rig cameras are kept here."""
 
     def __init__(self, host: ViewerHost, poses: PoseController, bakes: BakeController,
                  toggle_recording: Callable[[], None]):
@@ -36,72 +36,117 @@ class ActionController:
         self.toggle_recording = toggle_recording
         self.rig: dict = {}  # camera name -> parameters of the loaded rig
 
-    def run(self, name: str, arg) -> None:
-        """Perform the action `name`; unknown names are ignored. Errors propagate to the caller's report."""
-        host = self.host
-        st, ex = host.state, (host.avatar.expression if host.avatar is not None else None)
-        codes = self.poses.codes
-        if name == "open_avatar":
-            if arg:
-                host.open_avatar(str(arg))
-        elif name == "open_sequence":
-            if arg:
-                host.open_sequence(str(arg))
-        elif name == "preset":
-            st.camera.preset(arg)
+    def handlers(self) -> dict[type[A.Action], Callable]:
+        """The actions this controller carries out (errors propagate to the app's report)."""
+        host, st = self.host, self.host.state
+        cam = lambda: st.camera  # noqa: E731  (the camera object is replaced by Reset and sessions)
+        return {
+            A.OpenAvatar: lambda a: host.open_avatar(a.path) if a.path else None,
+            A.OpenSequence: lambda a: host.open_sequence(a.path) if a.path else None,
+            A.CameraPreset: self._preset,
+            A.FrameAvatar: lambda a: host.frame_avatar(),
+            A.ResetCamera: lambda a: host.frame_avatar(reset=True),
+            A.OrbitBy: lambda a: cam().orbit(a.yaw, a.pitch),
+            A.ZoomBy: lambda a: cam().zoom(a.steps),
+            A.RollBy: lambda a: setattr(cam(), "roll", cam().roll + a.degrees),
+            A.CycleRigCamera: self._cycle_rig,
+            A.FocusGaussian: self._focus,
+            A.ResetExpression: self._reset_expression,
+            A.RandomExpression: self._random_expression,
+            A.SlidersFromFrame: self._sliders_from_frame,
+            A.ApplyPreset: self._apply_preset,
+            A.SavePreset: self._save_preset,
+            A.TogglePlay: self._toggle_play,
+            A.StepFrames: self._step,
+            A.Bake: lambda a: self.bakes.start(),
+            A.CancelBake: lambda a: self.bakes.cancel(),
+            A.Screenshot: self._screenshot,
+            A.ToggleRecording: lambda a: self.toggle_recording(),
+            A.SaveSession: lambda a: st.save_session(a.path or "session.json"),
+            A.LoadSession: lambda a: self.load_session(a.path or "session.json"),
+            A.LoadRig: self._load_rig,
+        }
+
+    def _expression(self):
+        return self.host.avatar.expression if self.host.avatar is not None else None
+
+    def _preset(self, a: A.CameraPreset) -> None:
+        self.host.state.camera.preset(a.name)
+        self.host.state.rig_index = -1
+
+    def _cycle_rig(self, a: A.CycleRigCamera) -> None:
+        if self.rig:
+            self.host.state.rig_index = (self.host.state.rig_index + a.step) % len(self.rig)
+
+    def _focus(self, a: A.FocusGaussian) -> None:
+        posed, st = self.host.shown_posed(), self.host.state
+        if posed is not None and 0 <= a.index < len(posed):
+            st.camera.target = [float(v) for v in posed.means[a.index]]
             st.rig_index = -1
-        elif name == "frame_avatar":
-            host.frame_avatar()
-        elif name == "reset_camera":
-            host.frame_avatar(reset=True)
-        elif name == "reset_expression":
-            st.sliders[:] = 0
+
+    def _reset_expression(self, a: A.ResetExpression) -> None:
+        st = self.host.state
+        st.sliders[:] = 0
+        st.follow_sequence = False
+
+    def _random_expression(self, a: A.RandomExpression) -> None:
+        st = self.host.state
+        if self._expression() is None:
+            return
+        st.sliders[:] = 0
+        k = min(st.n_sliders, st.sliders.size)
+        st.sliders[:k] = np.clip(np.random.default_rng().standard_normal(k), -2.5, 2.5)
+        st.follow_sequence = False
+
+    def _sliders_from_frame(self, a: A.SlidersFromFrame) -> None:
+        st, ex, codes = self.host.state, self._expression(), self.poses.codes
+        if ex is not None and codes is not None:
+            st.sliders = ex.to_sliders(codes[self.poses.frame]).astype(np.float32)
             st.follow_sequence = False
-        elif name == "random_expression" and ex is not None:
-            st.sliders[:] = 0
-            k = min(st.n_sliders, st.sliders.size)
-            st.sliders[:k] = np.clip(np.random.default_rng().standard_normal(k), -2.5, 2.5)
-            st.follow_sequence = False
-        elif name == "sliders_from_frame" and ex is not None and codes is not None:
-            st.sliders = ex.to_sliders(codes[host.info.frame]).astype(np.float32)
-            st.follow_sequence = False
-        elif name == "apply_preset" and ex is not None:
-            code = ex.named.get(arg)
-            code = np.asarray(st.presets[arg], np.float32) if code is None else code
-            st.sliders = ex.to_sliders(code).astype(np.float32)
-            st.follow_sequence = False
-        elif name == "save_preset" and ex is not None and arg:
-            st.presets[str(arg)] = [float(v) for v in self.poses.slider_code()]
+
+    def _apply_preset(self, a: A.ApplyPreset) -> None:
+        st, ex = self.host.state, self._expression()
+        if ex is None:
+            return
+        code = ex.named.get(a.name)
+        if code is None:
+            if a.name not in st.presets:
+                raise ValueError(f"no preset named {a.name!r}")
+            code = np.asarray(st.presets[a.name], np.float32)
+        st.sliders = ex.to_sliders(code).astype(np.float32)
+        st.follow_sequence = False
+
+    def _save_preset(self, a: A.SavePreset) -> None:
+        if self._expression() is not None and a.name:
+            self.host.state.presets[a.name] = [float(v) for v in self.poses.slider_code()]
             self.save_presets()
-        elif name == "step" and host.sequence is not None:
-            tl = st.timeline
-            tl.playing = False
-            f = (host.info.frame + int(arg)) % len(host.sequence)
-            tl.time_s = (f + 0.5) / host.sequence.fps
+
+    def _toggle_play(self, a: A.TogglePlay) -> None:
+        st = self.host.state
+        if self.host.sequence is not None:
+            st.timeline.playing = not st.timeline.playing
             st.follow_sequence = True
-        elif name == "bake":
-            self.bakes.start()
-        elif name == "cancel_bake":
-            self.bakes.cancel()
-        elif name == "screenshot":
-            stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
-            host.screenshot(arg or f"npga-view-{stamp}.png")
-        elif name == "record":
-            self.toggle_recording()
-        elif name == "save_session":
-            st.save_session(arg or "session.json")
-        elif name == "load_session":
-            self.load_session(arg or "session.json")
-        elif name == "inspect_focus":
-            posed = host.shown_posed()
-            if posed is not None and 0 <= int(arg) < len(posed):
-                st.camera.target = [float(v) for v in posed.means[int(arg)]]
-                st.rig_index = -1
-        elif name == "load_rig" and arg:
-            self.rig = load_rig(arg)
-            st.rig_path = str(arg)
-            st.rig_index = 0
-            host.info.rig_names = list(self.rig)
+
+    def _step(self, a: A.StepFrames) -> None:
+        host, st = self.host, self.host.state
+        if host.sequence is None:
+            return
+        st.timeline.playing = False
+        f = (self.poses.frame + a.delta) % len(host.sequence)
+        st.timeline.time_s = (f + 0.5) / host.sequence.fps
+        st.follow_sequence = True
+
+    def _screenshot(self, a: A.Screenshot) -> None:
+        stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
+        self.host.screenshot(a.path or f"npga-view-{stamp}.png")
+
+    def _load_rig(self, a: A.LoadRig) -> None:
+        if not a.path:
+            return
+        st = self.host.state
+        self.rig = load_rig(a.path)
+        st.rig_path = a.path
+        st.rig_index = 0
 
     def load_session(self, path: str) -> None:
         """Restore camera, sliders, modes and open files from a session file."""
@@ -121,7 +166,6 @@ class ActionController:
         if st.rig_path:
             try:
                 self.rig = load_rig(st.rig_path)
-                host.info.rig_names = list(self.rig)
             except AvatarFileError as e:
                 st.report(str(e))
                 st.rig_index = -1

@@ -1,4 +1,4 @@
-"""The window's side of editing and keyframes: runs the edit/keyframe panels' actions, turns Ctrl-drags in the
+"""The window's side of editing and keyframes: runs the edit/keyframe actions, turns Ctrl-drags in the
 splat view into screen-space selections, highlights selected/hidden/preview Gaussians in what is uploaded, and
 keeps the pose worker in step with the edited cloud.
 
@@ -11,6 +11,7 @@ from __future__ import annotations
 import shutil
 import tempfile
 import time
+from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -19,10 +20,11 @@ from npga_core.editing.edits import EditSession
 from npga_core.editing.keyframes import KeyframeTimeline
 from npga_core.files.checkpoint import save_avatar
 from npga_core.model.gaussians import PosedGaussians, rgb_to_sh0
+from npga_view import actions as A
+from npga_view.controllers.edit_actions import EDIT_TABLE, KEYFRAME_TABLE, EditView, apply_edit, apply_keyframe
 from npga_view.controllers.host import ViewerHost
 from npga_view.imgui_glfw import imgui
-from npga_view.panels import edit as edit_panel
-from npga_view.panels import keyframes as keyframe_panel
+from npga_view.panels.info import AppInfo
 
 SELECT_RGB = (1.0, 0.55, 0.1)  # orange: selected
 PREVIEW_RGB = (1.0, 0.1, 0.1)  # red: would be removed
@@ -51,7 +53,7 @@ def highlight(posed: PosedGaussians, session: EditSession | None) -> PosedGaussi
 
 
 class EditController:
-    """Owned by the app; the app calls `handle`, `mouse`, `after_actions` and `tick` each frame."""
+    """Owned by the app, which registers `handlers()` and calls `mouse`, `after_actions` and `tick` each frame."""
 
     def __init__(self, app: ViewerHost, code_for_keyframe):
         self.app = app
@@ -60,7 +62,7 @@ class EditController:
         self.keyframes = KeyframeTimeline()
         self.kf_time = 0.0
         self.kf_playing = False
-        self.tool = {"tool": "rect", "mode": "replace", "brush_radius": 20.0}
+        self.tool = A.SelectTool("rect")  # the active selection tool, mode and brush radius
         self._drag: list[tuple[float, float]] | None = None
         self._seen = (0, 0)
         self._last_autosave = time.monotonic()
@@ -71,64 +73,79 @@ class EditController:
     def start(self, avatar, source: str | None) -> None:
         self.session = EditSession(avatar, source=source)
         self._seen = (self.session.version, self.session.mask_version)
-        self.app.info.edit = self.session
 
     # -- actions ------------------------------------------------------------------------------------
-    def handle(self, name: str, arg) -> bool:
-        """Run an edit or keyframe action; False if `name` belongs to neither panel."""
-        app, s = self.app, self.session
-        if name == "select_tool":
-            self.tool = dict(arg)
-            return True
-        if name == "edit_recover":
-            session = EditSession.recover(arg)
-            app.adopt_avatar(session.avatar, str(arg))
-            self.session = session
-            app.info.edit = session
-            self._seen = (-1, -1)  # force a re-sync with the worker
-            return True
-        if name.startswith(("select_", "edit_")):
-            if s is None:
-                raise ValueError("open an avatar first")
-            means = app.shown_means()
-            return edit_panel.apply(s, name, arg, camera=app.current_camera(), means=means, code=app.shown_code())
-        if name.startswith("kf_"):
-            return self._keyframe(name, arg)
-        return False
+    def handlers(self) -> dict[type[A.Action], Callable]:
+        """This controller's table of action type -> handler: the edit and keyframe tables of
+        `edit_actions` bound to the open session / timeline, and the actions that need the window."""
+        table: dict[type[A.Action], Callable] = {t: self._edit for t in EDIT_TABLE}
+        table.update({t: self._timeline for t in KEYFRAME_TABLE})
+        table.update({
+            A.SelectTool: self._select_tool,
+            A.RecoverEdits: self._recover,
+            A.NewKeyframes: self._new_keyframes,
+            A.AddExpressionKey: self._add_expression_key,
+            A.AddCameraKey: lambda a: self.keyframes.add_camera(a.time, self.app.current_camera(ignore_keyframes=True)),
+            A.PlayKeyframes: self._play,
+            A.SeekKeyframes: self._seek,
+            A.LoadKeyframes: self._load_keyframes,
+        })
+        return table
 
-    def _keyframe(self, name: str, arg) -> bool:
-        app, tl = self.app, self.keyframes
-        if keyframe_panel.apply(tl, name, arg):
-            return True
-        if name == "kf_new":
-            self.keyframes = KeyframeTimeline()
-            self.kf_time, self.kf_playing = 0.0, False
-        elif name == "kf_add_expression":
-            code = self._code_for_keyframe(arg.get("source", "sliders"), arg.get("preset"))
-            tl.add_expression(float(arg["time"]), code, interp=arg.get("interp", "smooth"),
-                              label=arg.get("preset") or arg.get("source", ""))
-        elif name == "kf_add_camera":
-            tl.add_camera(float(arg["time"]), app.current_camera(ignore_keyframes=True))
-        elif name == "kf_play":
-            self.kf_playing = bool(arg) and not tl.is_empty
-        elif name == "kf_seek":
-            self.kf_time, self.kf_playing = max(0.0, float(arg)), False
-        elif name == "kf_load":
-            loaded = KeyframeTimeline.load(arg)
-            if app.avatar is not None:
-                loaded.check_code_dim(app.avatar.code_dim, arg)
-            self.keyframes = loaded
-            self.kf_time, self.kf_playing = 0.0, False
-        else:
-            return False
-        app.info.keyframes = self.keyframes
-        return True
+    def _edit(self, a: A.Action) -> None:
+        if self.session is None:
+            raise ValueError("open an avatar first")
+        app = self.app
+        apply_edit(self.session, a, EditView(app.current_camera(), app.shown_means(), app.shown_code()))
+
+    def _timeline(self, a: A.Action) -> None:
+        apply_keyframe(self.keyframes, a)
+
+    def _select_tool(self, a: A.SelectTool) -> None:
+        self.tool = a
+
+    def _recover(self, a: A.RecoverEdits) -> None:
+        session = EditSession.recover(a.source)
+        self.app.adopt_avatar(session.avatar, a.source)
+        self.session = session
+        self._seen = (-1, -1)  # force a re-sync with the worker
+
+    def _new_keyframes(self, a: A.NewKeyframes) -> None:
+        self.keyframes = KeyframeTimeline()
+        self.kf_time, self.kf_playing = 0.0, False
+
+    def _add_expression_key(self, a: A.AddExpressionKey) -> None:
+        code = self._code_for_keyframe(a.source, a.preset)
+        self.keyframes.add_expression(a.time, code, interp=a.interp, label=a.preset or a.source)
+
+    def _play(self, a: A.PlayKeyframes) -> None:
+        self.kf_playing = a.playing and not self.keyframes.is_empty
+
+    def _seek(self, a: A.SeekKeyframes) -> None:
+        self.kf_time, self.kf_playing = max(0.0, a.time), False
+
+    def _load_keyframes(self, a: A.LoadKeyframes) -> None:
+        loaded = KeyframeTimeline.load(a.path)
+        if self.app.avatar is not None:
+            loaded.check_code_dim(self.app.avatar.code_dim, a.path)
+        self.keyframes = loaded
+        self.kf_time, self.kf_playing = 0.0, False
+
+    def publish(self, info: AppInfo) -> None:
+        """Copy what the Edit and Keyframes panels show into the frame's display snapshot."""
+        info.edit, info.keyframes = self.session, self.keyframes
+        info.keyframe_time, info.keyframe_playing = self.kf_time, self.kf_playing
+
+    @property
+    def dragging(self) -> bool:
+        """A selection drag is under way (it owns the mouse, even over the side panel)."""
+        return bool(self._drag)
 
     # -- mouse ------------------------------------------------------------------------------------------
     def mouse(self, view_origin: tuple[float, float], scale: float) -> bool:
         """Ctrl + left drag in the view selects with the active screen tool; True while it owns the mouse."""
         io = imgui.get_io()
-        tool = self.tool.get("tool")
+        tool = self.tool.tool
         if self.session is None or tool not in SCREEN_TOOLS:
             self._drag = None
             return False
@@ -148,15 +165,14 @@ class EditController:
         # released: convert window points (logical px) to view-camera pixels
         pts = [((x - view_origin[0]) * scale, (y - view_origin[1]) * scale) for x, y in self._drag]
         self._drag = None
-        mode = self.tool.get("mode", "replace")
+        mode, send = self.tool.mode, self.app.state.actions.append
         if tool == "rect" and len(pts) >= 2:
             (x0, y0), (x1, y1) = pts[0], pts[-1]
-            self.app.state.actions.append(("select_rect", {"rect": (x0, y0, x1, y1), "mode": mode}))
+            send(A.SelectRect((x0, y0, x1, y1), mode))
         elif tool == "lasso" and len(pts) >= 3:
-            self.app.state.actions.append(("select_lasso", {"polygon": pts, "mode": mode}))
+            send(A.SelectLasso(tuple(pts), mode))
         elif tool == "brush":
-            radius = float(self.tool.get("brush_radius", 20.0)) * scale
-            self.app.state.actions.append(("select_brush", {"centres": pts, "radius": radius, "mode": mode}))
+            send(A.SelectBrush(tuple(pts), self.tool.brush_radius * scale, mode))
         return True
 
     def _draw_outline(self, tool: str) -> None:
@@ -171,7 +187,7 @@ class EditController:
             for a, b in zip(d, d[1:] + d[:1], strict=True):
                 dl.add_line(imgui.ImVec2(*a), imgui.ImVec2(*b), col, thickness=1.5)
         elif tool == "brush":
-            r = float(self.tool.get("brush_radius", 20.0))
+            r = self.tool.brush_radius
             for p in d[-1:]:
                 dl.add_circle(imgui.ImVec2(*p), r, col, num_segments=0, thickness=1.5)
 
@@ -212,8 +228,6 @@ class EditController:
         if self.kf_playing and not self.keyframes.is_empty:
             dur = max(self.keyframes.duration, 1e-6)
             self.kf_time = (self.kf_time + dt) % dur
-        info = self.app.info
-        info.keyframe_time, info.keyframe_playing = self.kf_time, self.kf_playing
         s = self.session
         if s is not None and s.dirty and time.monotonic() - self._last_autosave > AUTOSAVE_EVERY_S:
             self._last_autosave = time.monotonic()

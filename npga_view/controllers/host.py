@@ -16,7 +16,6 @@ if TYPE_CHECKING:
     from npga_core.model.avatar import Avatar
     from npga_core.model.gaussians import PosedGaussians
     from npga_core.posing.engine import PoseEngine
-    from npga_view.controllers.playback import Playback
     from npga_view.panels.info import AppInfo
     from npga_view.state import ViewerState
 
@@ -29,7 +28,6 @@ class ViewerHost(Protocol):
     avatar: Avatar | None
     engine: PoseEngine | None
     sequence: ExpressionSequence | None
-    playback: Playback | None
     content_version: int  # incremented by every `show`
 
     def adopt_avatar(self, avatar: Avatar, path: str) -> None:

@@ -14,23 +14,28 @@ from collections.abc import Callable
 import numpy as np
 
 from npga_core.model.gaussians import PosedGaussians
-from npga_core.posing.smoothing import jitter, smooth
+from npga_view.controllers.bake import BakeController
 from npga_view.controllers.host import ViewerHost
+from npga_view.controllers.playback import Playback
+from npga_view.controllers.sequence_codes import SequenceCodes
+from npga_view.panels.info import AppInfo
 
 
 class PoseController:
     """Owned by the app; `update(dt)` runs once per UI frame. See the module docstring."""
 
-    def __init__(self, host: ViewerHost, bake_usable: Callable[[], bool],
+    def __init__(self, host: ViewerHost, sequence_codes: SequenceCodes, bakes: BakeController,
                  keyframe_code: Callable[[], np.ndarray | None], playback_previews: bool = True):
         self.host = host
         self.playback_previews = playback_previews  # real-time playback may show previews to keep the clock
-        self._bake_usable = bake_usable
+        self.seq_codes = sequence_codes
+        self.bakes = bakes
         self._keyframe_code = keyframe_code
-        self.codes: np.ndarray | None = None  # the sequence's (smoothed) codes
-        self.smooth_key: tuple | None = None  # what `codes` were smoothed from and how
         self.first_pose_shown = False
         self.changed = False  # a new pose arrived this frame (the image must be redrawn)
+        self.playback: Playback | None = None  # the open sequence's clock (None without a sequence)
+        self.frame = 0  # the sequence frame the clock is on
+        self.timings: dict[str, float] = {}  # the worker's last F and G times, ms
         self.reset()
 
     def reset(self) -> None:
@@ -41,15 +46,33 @@ class PoseController:
         self.requested_frame: int | None = None
         self._frame_of_request: dict[int, int | None] = {}  # pending request id -> sequence frame it shows
         self._frame_of_version: dict[int, int] = {}  # content version uploaded -> sequence frame it shows
+        self.canonical = False  # the cloud on screen is the canonical one (the first pose has not arrived)
+        self.preview = False  # ... the worker's fast approximation (the exact pose is on its way)
+        self.baked = False  # ... a baked frame
+        self.interpolated = False  # ... interpolated between two stored frames of the bake
 
     def engine_restarted(self) -> None:
         """A new worker: ask it for the current code again."""
         self.requested = None
         self._frame_of_request = {}
 
+    def sequence_opened(self, n_frames: int, fps: float) -> None:
+        self.playback = Playback(n_frames, fps)
+        self.seq_codes.forget()
+
     def sequence_closed(self) -> None:
-        self.codes = None
-        self.smooth_key = None
+        self.playback = None
+        self.seq_codes.forget()
+
+    @property
+    def codes(self) -> np.ndarray | None:
+        """The sequence's smoothed codes (None until first asked for, or without a sequence)."""
+        return self.seq_codes.codes
+
+    @property
+    def exact(self) -> bool:
+        """The cloud on screen is the exact pose of what is asked for (not a preview, canonical or interpolated)."""
+        return not (self.preview or self.canonical or self.interpolated)
 
     # ------------------------------------------------------------------------------------------- codes
     def slider_code(self) -> np.ndarray:
@@ -58,23 +81,7 @@ class PoseController:
         return ex.from_sliders(st.sliders) if st.sliders.size else ex.mean.copy()
 
     def sequence_codes(self) -> np.ndarray:
-        """The open sequence's codes, smoothed as the Timeline panel says (recomputed when that changes)."""
-        host = self.host
-        tl, seq = host.state.timeline, host.sequence
-        key = (id(seq), tl.smoothing, tl.smooth_alpha, tl.euro_min_cutoff, tl.euro_beta)
-        if key != self.smooth_key:
-            self.codes = smooth(seq.codes, tl.smoothing, seq.fps, tl.smooth_alpha, tl.euro_min_cutoff, tl.euro_beta)
-            host.info.jitter_raw = jitter(seq.codes)
-            host.info.jitter_smoothed = jitter(self.codes)
-            self.smooth_key = key
-        return self.codes
-
-    def bake_key(self) -> tuple | None:
-        """What a bake of the timeline would be of (sequence and smoothing), None without a sequence."""
-        if self.host.sequence is None:
-            return None
-        self.sequence_codes()
-        return self.smooth_key
+        return self.seq_codes.get()
 
     def following(self) -> bool:
         return self.host.sequence is not None and self.host.state.follow_sequence
@@ -88,8 +95,8 @@ class PoseController:
         if self.following():
             codes = self.sequence_codes()
             shown = self.shown_frame == self.requested_frame
-            frame = host.playback.advance(host.state.timeline, dt, shown)
-            host.info.frame = frame
+            frame = self.playback.advance(host.state.timeline, dt, shown)
+            self.frame = frame
             self.requested_frame = frame
             return codes[frame]
         kf = self._keyframe_code()
@@ -111,7 +118,7 @@ class PoseController:
         following = self.following()
         if code is not None and (self.requested is None or not np.array_equal(code, self.requested)):
             tl = host.state.timeline
-            if following and self._bake_usable():
+            if following and self.bakes.usable(self.seq_codes.key()):
                 req = eng.request_frame(self.requested_frame)
             else:  # sliders and real-time playback: a fast preview while exact poses are slow, then the exact
                 # pose (abandoned when the clock has moved on); every-frame playback: exact poses only
@@ -124,24 +131,32 @@ class PoseController:
             # a frame with the code already on screen (a held expression): it is shown as it is, and the head
             # pose of the new frame applies
             self.shown_frame = self.requested_frame
-            host.playback.shown(self.shown_frame, time.perf_counter(), host.state.timeline.playing)
+            self.playback.shown(self.shown_frame, time.perf_counter(), host.state.timeline.playing)
         self._take(eng.poll())
         if eng.last_error:
             host.state.report(eng.last_error)
             eng.last_error = None
-        info = host.info
-        info.posing = eng.pending is not None
-        info.engine_status = eng.status
-        if host.playback is not None:
-            info.achieved_fps = host.playback.achieved_fps()
-            info.skipped = host.playback.skipped
+
+    def publish(self, info: AppInfo) -> None:
+        """Copy what the panels show into the frame's display snapshot."""
+        eng = self.host.engine
+        info.frame = self.frame
+        info.posing = eng is not None and eng.pending is not None
+        info.engine_status = eng.status if eng is not None else {}
+        if self.playback is not None:
+            info.achieved_fps = self.playback.achieved_fps()
+            info.skipped = self.playback.skipped
+        info.jitter_raw, info.jitter_smoothed = self.seq_codes.jitter_raw, self.seq_codes.jitter_smoothed
+        info.canonical, info.preview = self.canonical, self.preview
+        info.baked, info.interpolated = self.baked, self.interpolated
+        info.timings.update(self.timings)
 
     def _take(self, result) -> None:
         """Show a worker answer (a preview, an exact pose or a baked frame) and do its frame bookkeeping."""
         if result is None:
             return
-        host, info = self.host, self.host.info
-        info.canonical = False
+        host = self.host
+        self.canonical = False
         frame = self._frame_of_request.get(result.request_id)
         if len(result.posed) == len(host.avatar):
             p = result.posed
@@ -151,13 +166,13 @@ class PoseController:
             if frame is not None:
                 self._frame_of_version[host.content_version] = frame
         result.release()
-        info.timings.update({k: v for k, v in result.timings.items() if k in ("F", "G")})
+        self.timings.update({k: v for k, v in result.timings.items() if k in ("F", "G")})
         self.shown_code = result.code
-        info.preview = bool(result.preview) and not result.baked
-        info.baked, info.interpolated = result.baked, result.baked and result.preview
+        self.preview = bool(result.preview) and not result.baked
+        self.baked, self.interpolated = result.baked, result.baked and result.preview
         if frame is not None:  # a preview shows its frame too (playback follows the clock with previews)
             self.shown_frame = frame
-        if info.preview:  # the exact pose of this request follows: keep its frame bookkeeping
+        if self.preview:  # the exact pose of this request follows: keep its frame bookkeeping
             return
         self._frame_of_request = {k: v for k, v in self._frame_of_request.items() if k > result.request_id}
         self.first_pose_shown = True
@@ -172,6 +187,6 @@ class PoseController:
         frame = self._frame_of_version[max(done)]
         for v in done:
             del self._frame_of_version[v]
-        pb = self.host.playback
+        pb = self.playback
         if pb is not None:
             pb.shown(frame, time.perf_counter(), self.host.state.timeline.playing)

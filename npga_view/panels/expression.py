@@ -4,51 +4,56 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
+from npga_view import actions as A
 from npga_view.panels.expression_pad import ExpressionPad
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import MAX_SLIDERS, ViewerState
 
-_ui = {"preset_name": "my expression"}
-pad = ExpressionPad()
 
+class ExpressionPanel:
+    """The Expression panel; owns the name typed for a new preset and the expression pad."""
 
-def draw(state: ViewerState, info: AppInfo) -> None:
-    if not imgui.collapsing_header("Expression", imgui.TreeNodeFlags_.default_open):
-        return
-    a = info.avatar
-    if a is None or a.expression is None or a.code_dim == 0:
-        imgui.text_disabled("This avatar has no expression space.")
-        return
-    ex = a.expression
-    k_max = min(MAX_SLIDERS, ex.n_components)
-    _, state.n_sliders = imgui.slider_int("Directions", min(state.n_sliders, k_max), 1, k_max)
-    if info.sequence is not None:
-        _, state.follow_sequence = imgui.checkbox("Follow sequence", state.follow_sequence)
-        remember(info, "follow_sequence")
-    if imgui.button("Mean"):
-        state.actions.append(("reset_expression", None))
-    imgui.same_line()
-    if imgui.button("Random"):
-        state.actions.append(("random_expression", None))
-    remember(info, "random")
-    if info.sequence is not None:
+    def __init__(self) -> None:
+        self.preset_name = "my expression"
+        self.pad = ExpressionPad()
+
+    def draw(self, state: ViewerState, info: AppInfo) -> None:
+        if not imgui.collapsing_header("Expression", imgui.TreeNodeFlags_.default_open):
+            return
+        a = info.avatar
+        if a is None or a.expression is None or a.code_dim == 0:
+            imgui.text_disabled("This avatar has no expression space.")
+            return
+        ex = a.expression
+        k_max = min(MAX_SLIDERS, ex.n_components)
+        _, state.n_sliders = imgui.slider_int("Directions", min(state.n_sliders, k_max), 1, k_max)
+        if info.sequence is not None:
+            _, state.follow_sequence = imgui.checkbox("Follow sequence", state.follow_sequence)
+            remember(info, "follow_sequence")
+        if imgui.button("Mean"):
+            state.actions.append(A.ResetExpression())
         imgui.same_line()
-        if imgui.button("From frame"):
-            state.actions.append(("sliders_from_frame", None))
-    for i in range(min(state.n_sliders, state.sliders.size)):
-        changed, v = imgui.slider_float(f"PC {i + 1}##pc{i}", float(state.sliders[i]), -3.0, 3.0, "%+.2f sd")
-        remember(info, f"slider{i}")
-        if changed:
-            state.sliders[i] = v
-            state.follow_sequence = False
-    if imgui.tree_node("Presets"):
-        for name in list(ex.named) + [p for p in state.presets if p not in ex.named]:
-            if imgui.selectable(name, False)[0]:
-                state.actions.append(("apply_preset", name))
-        imgui.set_next_item_width(160)
-        _, _ui["preset_name"] = imgui.input_text("##preset", _ui["preset_name"])
-        imgui.same_line()
-        if imgui.button("Save preset"):
-            state.actions.append(("save_preset", _ui["preset_name"].strip()))
-        imgui.tree_pop()
-    pad.draw(state, info)
+        if imgui.button("Random"):
+            state.actions.append(A.RandomExpression())
+        remember(info, "random")
+        if info.sequence is not None:
+            imgui.same_line()
+            if imgui.button("From frame"):
+                state.actions.append(A.SlidersFromFrame())
+        for i in range(min(state.n_sliders, state.sliders.size)):
+            changed, v = imgui.slider_float(f"PC {i + 1}##pc{i}", float(state.sliders[i]), -3.0, 3.0, "%+.2f sd")
+            remember(info, f"slider{i}")
+            if changed:
+                state.sliders[i] = v
+                state.follow_sequence = False
+        if imgui.tree_node("Presets"):
+            for name in list(ex.named) + [p for p in state.presets if p not in ex.named]:
+                if imgui.selectable(name, False)[0]:
+                    state.actions.append(A.ApplyPreset(name))
+            imgui.set_next_item_width(160)
+            _, self.preset_name = imgui.input_text("##preset", self.preset_name)
+            imgui.same_line()
+            if imgui.button("Save preset"):
+                state.actions.append(A.SavePreset(self.preset_name.strip()))
+            imgui.tree_pop()
+        self.pad.draw(state, info)

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from imgui_bundle import imgui
 
+from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import ViewerState
 
@@ -29,7 +30,6 @@ FILTERS = {
     "open_avatar": ["Avatars (.npga, .ply)", "*.npga *.ply", "All files", "*"],
     "open_sequence": ["Sequences (.npzseq, .npz, .npy)", "*.npzseq *.npz *.npy", "All files", "*"],
 }
-_ui: dict = {"path": "", "browse": os.getcwd(), "dialog": None, "native": None}
 
 
 def native_dialogs_available(env: Mapping[str, str] = os.environ, platform: str = sys.platform,
@@ -51,25 +51,6 @@ def native_dialogs_available(env: Mapping[str, str] = os.environ, platform: str 
     return any(which(p) for p in LINUX_DIALOG_PROGRAMS)
 
 
-def _native() -> bool:
-    if _ui["native"] is None:
-        _ui["native"] = native_dialogs_available()
-    return _ui["native"]
-
-
-def ask_open(action: str, title: str) -> None:
-    """Open the native dialog for `action` ("open_avatar", "open_sequence", or "open_folder" for a tracking
-    folder); its answer is queued as that action when the user closes it."""
-    from imgui_bundle import portable_file_dialogs as pfd
-
-    if _ui["dialog"] is not None:
-        return
-    if action == "open_folder":
-        _ui["dialog"] = ("open_sequence", pfd.select_folder(title, _ui["browse"]))
-    else:
-        _ui["dialog"] = (action, pfd.open_file(title, _ui["browse"], FILTERS[action]))
-
-
 def ask_save(title: str, default_path: str, filters: list[str] | None = None):
     """Start a native save dialog (it asks before overwriting); poll `.ready(0)`, then `.result()` is the
     chosen path or "" when cancelled."""
@@ -78,91 +59,121 @@ def ask_save(title: str, default_path: str, filters: list[str] | None = None):
     return pfd.save_file(title, default_path, filters if filters is not None else ["All files", "*"])
 
 
-def _poll_dialog(state: ViewerState) -> None:
-    pending = _ui["dialog"]
-    if pending is None or not pending[1].ready(0):
-        return
-    _ui["dialog"] = None
-    result = pending[1].result()
-    path = result[0] if isinstance(result, list) and result else result if isinstance(result, str) else ""
-    if path:
-        state.actions.append((pending[0], path))
-        _ui["browse"] = str(Path(path).parent if Path(path).is_file() else Path(path))
+
+def open_action(path: str) -> A.OpenAvatar | A.OpenSequence:
+    """Open `path` as an avatar (.npga, .ply files) or else as a sequence (files, tracking folders)."""
+    p = Path(path)
+    return A.OpenAvatar(path) if p.suffix.lower() in AVATAR_EXT and not p.is_dir() else A.OpenSequence(path)
 
 
-def _native_buttons() -> None:
-    if _ui["dialog"] is not None:
-        imgui.text_disabled("waiting for the file dialog...")
-        return
-    if imgui.button("Choose avatar..."):
-        ask_open("open_avatar", "Open an avatar")
-    imgui.same_line()
-    if imgui.button("Choose sequence..."):
-        ask_open("open_sequence", "Open an expression sequence")
-    imgui.same_line()
-    if imgui.button("Folder..."):
-        ask_open("open_folder", "Open a MonoNPHM tracking folder")
-    if imgui.is_item_hovered():
-        imgui.set_tooltip("Choose a MonoNPHM tracking folder")
+_OPENERS = {"open_avatar": A.OpenAvatar, "open_sequence": A.OpenSequence}
 
 
-def _browser(state: ViewerState) -> None:
-    folder = Path(_ui["browse"])
-    imgui.text_disabled(str(folder)[-60:])
-    if imgui.begin_list_box("##browser", imgui.ImVec2(-1, 140)):
-        if imgui.selectable("..", False)[0]:
-            _ui["browse"] = str(folder.parent)
-        try:
-            entries = sorted(folder.iterdir(), key=lambda p: (not p.is_dir(), p.name.lower()))
-        except OSError:
-            entries = []
-        for p in entries[:500]:
-            if p.name.startswith("."):
-                continue
-            if p.is_dir():
-                is_track = (p / "00000" / "z_exp.npy").is_file()
-                if imgui.selectable(f"[{'seq' if is_track else 'dir'}] {p.name}", False)[0]:
-                    if is_track:
-                        state.actions.append(("open_sequence", str(p)))
-                    else:
-                        _ui["browse"] = str(p)
-            elif p.suffix in AVATAR_EXT + SEQUENCE_EXT and imgui.selectable(p.name, False)[0]:
-                kind = "open_avatar" if p.suffix in AVATAR_EXT else "open_sequence"
-                state.actions.append((kind, str(p)))
-        imgui.end_list_box()
+class FilesPanel:
+    """The Files panel; owns its widgets' state: the typed path, the folder being browsed, a pending dialog."""
 
+    def __init__(self, browse: str, native: bool | None = None):
+        self.path = ""
+        self.browse = browse  # the folder the browser and the dialogs start in
+        self.dialog = None  # (action name, pending portable_file_dialogs dialog) while one is open
+        self.native = native  # native dialogs (None: decided by `native_dialogs_available` when first drawn)
 
-def draw(state: ViewerState, info: AppInfo) -> None:
-    if not imgui.collapsing_header("Files", imgui.TreeNodeFlags_.default_open):
-        return
-    a = info.avatar
-    imgui.text_wrapped(f"Avatar: {Path(state.avatar_path).name if state.avatar_path else '-'}"
-                       + (f" ({len(a):,} Gaussians)" if a is not None else ""))
-    imgui.text_wrapped(f"Sequence: {Path(state.sequence_path).name if state.sequence_path else '-'}")
-    imgui.set_next_item_width(-1)
-    _, _ui["path"] = imgui.input_text("##path", _ui["path"])
-    remember(info, "path_input")
-    if imgui.button("Open avatar"):
-        state.actions.append(("open_avatar", _ui["path"].strip()))
-    remember(info, "open_avatar")
-    imgui.same_line()
-    if imgui.button("Open sequence"):
-        state.actions.append(("open_sequence", _ui["path"].strip()))
-    remember(info, "open_sequence")
-    imgui.same_line()
-    if imgui.button("Demo"):
-        state.actions.append(("open_avatar", "demo"))
-    if _native():
-        _poll_dialog(state)
-        _native_buttons()
-    elif imgui.tree_node("Browse"):
-        _browser(state)
-        imgui.tree_pop()
-    if state.recent and imgui.tree_node("Recent"):
-        for p in state.recent:
-            if imgui.selectable(p if len(p) < 50 else "..." + p[-47:], False)[0]:
-                ext = Path(p).suffix
-                kind = "open_sequence" if ext in SEQUENCE_EXT or Path(p).is_dir() else "open_avatar"
-                state.actions.append((kind, p))
-        imgui.tree_pop()
-    imgui.text_disabled("Tip: drop files on the window.")
+    def _native(self) -> bool:
+        if self.native is None:
+            self.native = native_dialogs_available()
+        return self.native
+
+    def ask_open(self, action: str, title: str) -> None:
+        """Open the native dialog for `action` ("open_avatar", "open_sequence", or "open_folder" for a tracking
+        folder); its answer is queued as that action when the user closes it."""
+        from imgui_bundle import portable_file_dialogs as pfd
+
+        if self.dialog is not None:
+            return
+        if action == "open_folder":
+            self.dialog = ("open_sequence", pfd.select_folder(title, self.browse))
+        else:
+            self.dialog = (action, pfd.open_file(title, self.browse, FILTERS[action]))
+
+    def poll_dialog(self, state: ViewerState) -> None:
+        pending = self.dialog
+        if pending is None or not pending[1].ready(0):
+            return
+        self.dialog = None
+        result = pending[1].result()
+        path = result[0] if isinstance(result, list) and result else result if isinstance(result, str) else ""
+        if path:
+            state.actions.append(_OPENERS[pending[0]](path))
+            self.browse = str(Path(path).parent if Path(path).is_file() else Path(path))
+
+    def _native_buttons(self) -> None:
+        if self.dialog is not None:
+            imgui.text_disabled("waiting for the file dialog...")
+            return
+        if imgui.button("Choose avatar..."):
+            self.ask_open("open_avatar", "Open an avatar")
+        imgui.same_line()
+        if imgui.button("Choose sequence..."):
+            self.ask_open("open_sequence", "Open an expression sequence")
+        imgui.same_line()
+        if imgui.button("Folder..."):
+            self.ask_open("open_folder", "Open a MonoNPHM tracking folder")
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("Choose a MonoNPHM tracking folder")
+
+    def _browser(self, state: ViewerState) -> None:
+        folder = Path(self.browse)
+        imgui.text_disabled(str(folder)[-60:])
+        if imgui.begin_list_box("##browser", imgui.ImVec2(-1, 140)):
+            if imgui.selectable("..", False)[0]:
+                self.browse = str(folder.parent)
+            try:
+                entries = sorted(folder.iterdir(), key=lambda p: (not p.is_dir(), p.name.lower()))
+            except OSError:
+                entries = []
+            for p in entries[:500]:
+                if p.name.startswith("."):
+                    continue
+                if p.is_dir():
+                    is_track = (p / "00000" / "z_exp.npy").is_file()
+                    if imgui.selectable(f"[{'seq' if is_track else 'dir'}] {p.name}", False)[0]:
+                        if is_track:
+                            state.actions.append(A.OpenSequence(str(p)))
+                        else:
+                            self.browse = str(p)
+                elif p.suffix in AVATAR_EXT + SEQUENCE_EXT and imgui.selectable(p.name, False)[0]:
+                    state.actions.append(open_action(str(p)))
+            imgui.end_list_box()
+
+    def draw(self, state: ViewerState, info: AppInfo) -> None:
+        if not imgui.collapsing_header("Files", imgui.TreeNodeFlags_.default_open):
+            return
+        a = info.avatar
+        imgui.text_wrapped(f"Avatar: {Path(state.avatar_path).name if state.avatar_path else '-'}"
+                           + (f" ({len(a):,} Gaussians)" if a is not None else ""))
+        imgui.text_wrapped(f"Sequence: {Path(state.sequence_path).name if state.sequence_path else '-'}")
+        imgui.set_next_item_width(-1)
+        _, self.path = imgui.input_text("##path", self.path)
+        remember(info, "path_input")
+        if imgui.button("Open avatar"):
+            state.actions.append(A.OpenAvatar(self.path.strip()))
+        remember(info, "open_avatar")
+        imgui.same_line()
+        if imgui.button("Open sequence"):
+            state.actions.append(A.OpenSequence(self.path.strip()))
+        remember(info, "open_sequence")
+        imgui.same_line()
+        if imgui.button("Demo"):
+            state.actions.append(A.OpenAvatar("demo"))
+        if self._native():
+            self.poll_dialog(state)
+            self._native_buttons()
+        elif imgui.tree_node("Browse"):
+            self._browser(state)
+            imgui.tree_pop()
+        if state.recent and imgui.tree_node("Recent"):
+            for p in state.recent:
+                if imgui.selectable(p if len(p) < 50 else "..." + p[-47:], False)[0]:
+                    state.actions.append(open_action(p))
+            imgui.tree_pop()
+        imgui.text_disabled("Tip: drop files on the window.")

@@ -15,8 +15,8 @@ Expects (the app provides them):
 When ``state.inspect.pick_on_click`` is on, a left click (without drag) in the splat view should set
 ``state.inspect.picked = renderer.pick(camera, x, y)`` (image pixels, top-left origin, unflipped camera).
 
-Actions appended to ``state.actions``:
-- ``("inspect_focus", index)``: move the orbit camera's target to the posed centre of Gaussian `index`.
+Actions appended to ``state.actions``: `FocusGaussian(index)` (npga_view/actions.py): move the orbit camera's
+target to the posed centre of Gaussian `index`.
 """
 
 from __future__ import annotations
@@ -37,6 +37,7 @@ from npga_core.inspection.inspector import (
     parse_mode,
 )
 from npga_core.inspection.measures import SCALE_MEASURES
+from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import ViewerState
 
@@ -64,7 +65,7 @@ def _fmt(v: float) -> str:
     return f"{v:.3g}" if v == 0 or 1e-3 <= abs(v) < 1e4 else f"{v:.2e}"
 
 
-def draw(state: ViewerState, info: AppInfo) -> None:
+def _draw(state: ViewerState, info: AppInfo) -> None:
     opened = imgui.collapsing_header("Inspect")
     remember(info, "inspect")
     if not opened:
@@ -265,7 +266,7 @@ def _picked(s: InspectSettings, ii: InspectInfo | None, state: ViewerState, info
         return
     imgui.same_line()
     if imgui.button("Focus"):
-        state.actions.append(("inspect_focus", s.picked))
+        state.actions.append(A.FocusGaussian(s.picked))
     remember(info, "inspect_focus")
     rec = ii.record if ii is not None else None
     if rec is None or rec.get("index") != s.picked:
@@ -308,3 +309,10 @@ def _record(rec: dict, s: InspectSettings) -> None:
     for j, dist in rec["neighbours"]:
         if imgui.selectable(f"  {j}  ({_fmt(dist)})##nb{j}", False)[0]:
             s.picked = j
+
+
+class InspectPanel:
+    """The Inspect panel (its settings live in `state.inspect`, its figures in `info.inspect`)."""
+
+    def draw(self, state: ViewerState, info: AppInfo) -> None:
+        _draw(state, info)

@@ -11,8 +11,16 @@ STAGES = (("F", "dynamics F"), ("G", "dynamics G"), ("cnn", "CNN"), ("sort", "so
           ("preprocess", "project"), ("draw", "draw"))
 
 
-def draw(state: ViewerState, info: AppInfo) -> None:
-    """An overlay in the top-right corner of the splat view."""
+class StatsOverlay:
+    """An overlay in the top-right corner of the splat view: counts, rates, what the image is, stage times."""
+
+    def draw(self, state: ViewerState, info: AppInfo) -> None:
+        _draw()
+        _body(info)
+        imgui.end()
+
+
+def _draw() -> None:
     vp = imgui.get_main_viewport()
     imgui.set_next_window_pos(imgui.ImVec2(vp.pos.x + vp.size.x - 10, vp.pos.y + 10), imgui.Cond_.always,
                               imgui.ImVec2(1.0, 0.0))
@@ -20,8 +28,6 @@ def draw(state: ViewerState, info: AppInfo) -> None:
     flags = (imgui.WindowFlags_.no_decoration | imgui.WindowFlags_.always_auto_resize | imgui.WindowFlags_.no_move
              | imgui.WindowFlags_.no_focus_on_appearing | imgui.WindowFlags_.no_nav)
     imgui.begin("Stats", None, flags)
-    _body(info)
-    imgui.end()
 
 
 def _body(info: AppInfo) -> None:

@@ -6,13 +6,14 @@ from __future__ import annotations
 from imgui_bundle import imgui
 
 from npga_core.posing.headpose import has_head_pose, pose_description
+from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import ViewerState
 
 SMOOTHING = ("none", "exponential", "one_euro")
 
 
-def draw(state: ViewerState, info: AppInfo) -> None:
+def _draw(state: ViewerState, info: AppInfo) -> None:
     if not imgui.collapsing_header("Timeline", imgui.TreeNodeFlags_.default_open):
         return
     seq = info.sequence
@@ -22,15 +23,14 @@ def draw(state: ViewerState, info: AppInfo) -> None:
     tl = state.timeline
     n = len(seq)
     if imgui.button("Pause" if tl.playing else "Play"):
-        tl.playing = not tl.playing
-        state.follow_sequence = True
+        state.actions.append(A.TogglePlay())
     remember(info, "play")
     imgui.same_line()
     if imgui.button("<"):
-        state.actions.append(("step", -1))
+        state.actions.append(A.StepFrames(-1))
     imgui.same_line()
     if imgui.button(">"):
-        state.actions.append(("step", 1))
+        state.actions.append(A.StepFrames(1))
     imgui.same_line()
     _, tl.loop = imgui.checkbox("Loop", tl.loop)
     imgui.same_line()
@@ -87,7 +87,7 @@ def _bake(state: ViewerState, info: AppInfo) -> None:
     remember(info, "baked")
     imgui.same_line()
     if imgui.button("Bake"):
-        state.actions.append(("bake", None))
+        state.actions.append(A.Bake())
     remember(info, "bake")
     if imgui.is_item_hovered():
         imgui.set_tooltip("Precompute the dynamics of every frame (of the smoothed codes), then play them at the "
@@ -96,7 +96,7 @@ def _bake(state: ViewerState, info: AppInfo) -> None:
     if st is not None and what != "none":
         imgui.same_line()
         if imgui.button("Cancel##bake" if what == "baking" else "Drop##bake"):
-            state.actions.append(("cancel_bake", None))
+            state.actions.append(A.CancelBake())
         remember(info, "cancel_bake")
     imgui.set_next_item_width(160)
     _, tl.bake_budget_mb = imgui.slider_float("Budget", tl.bake_budget_mb, 64.0, 8192.0, "%.0f MB",
@@ -122,3 +122,10 @@ def _bake(state: ViewerState, info: AppInfo) -> None:
         imgui.text_disabled("Frames not baked yet are posed exactly as they come.")
     if st.error:
         imgui.text_colored(imgui.ImVec4(1.0, 0.8, 0.3, 1.0), st.error)
+
+
+class TimelinePanel:
+    """The Timeline panel (all it shows and sets lives in `state.timeline` and `info`)."""
+
+    def draw(self, state: ViewerState, info: AppInfo) -> None:
+        _draw(state, info)

@@ -5,68 +5,74 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
+from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import RENDER_MODES, ViewerState
 
-_ui = {"session": "session.json", "rig": ""}
 
+class ViewPanel:
+    """The View panel; owns the typed rig and session paths."""
 
-def draw(state: ViewerState, info: AppInfo) -> None:
-    if not imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
-        return
-    cam = state.camera
-    for name, label in (("front", "Front"), ("three_quarter", "3/4"), ("side", "Side"), ("top", "Top")):
-        if imgui.button(label):
-            state.actions.append(("preset", name))
+    def __init__(self) -> None:
+        self.session = "session.json"
+        self.rig = ""
+
+    def draw(self, state: ViewerState, info: AppInfo) -> None:
+        if not imgui.collapsing_header("View", imgui.TreeNodeFlags_.default_open):
+            return
+        cam = state.camera
+        for name, label in (("front", "Front"), ("three_quarter", "3/4"), ("side", "Side"), ("top", "Top")):
+            if imgui.button(label):
+                state.actions.append(A.CameraPreset(name))
+            imgui.same_line()
+        if imgui.button("Frame"):
+            state.actions.append(A.FrameAvatar())
         imgui.same_line()
-    if imgui.button("Frame"):
-        state.actions.append(("frame_avatar", None))
-    imgui.same_line()
-    if imgui.button("Reset"):
-        state.actions.append(("reset_camera", None))
-    _, cam.fov_y = imgui.slider_float("FOV", cam.fov_y, 5.0, 90.0, "%.1f deg")
-    _, cam.roll = imgui.slider_float("Roll", cam.roll, -180.0, 180.0, "%.0f deg")
-    if info.rig_names:
-        labels = ["orbit camera"] + info.rig_names
-        changed, idx = imgui.combo("Rig camera", state.rig_index + 1, labels)
+        if imgui.button("Reset"):
+            state.actions.append(A.ResetCamera())
+        _, cam.fov_y = imgui.slider_float("FOV", cam.fov_y, 5.0, 90.0, "%.1f deg")
+        _, cam.roll = imgui.slider_float("Roll", cam.roll, -180.0, 180.0, "%.0f deg")
+        if info.rig_names:
+            labels = ["orbit camera"] + info.rig_names
+            changed, idx = imgui.combo("Rig camera", state.rig_index + 1, labels)
+            if changed:
+                state.rig_index = idx - 1
+        imgui.set_next_item_width(200)
+        _, self.rig = imgui.input_text("##rig", self.rig)
+        imgui.same_line()
+        if imgui.button("Load rig"):
+            state.actions.append(A.LoadRig(self.rig.strip()))
+        idx = RENDER_MODES.index(state.mode) if state.mode in RENDER_MODES else 0
+        changed, idx = imgui.combo("Pass", idx, list(RENDER_MODES))
         if changed:
-            state.rig_index = idx - 1
-    imgui.set_next_item_width(200)
-    _, _ui["rig"] = imgui.input_text("##rig", _ui["rig"])
-    imgui.same_line()
-    if imgui.button("Load rig"):
-        state.actions.append(("load_rig", _ui["rig"].strip()))
-    idx = RENDER_MODES.index(state.mode) if state.mode in RENDER_MODES else 0
-    changed, idx = imgui.combo("Pass", idx, list(RENDER_MODES))
-    if changed:
-        state.mode = RENDER_MODES[idx]
-    remember(info, "mode")
-    _, bg = imgui.color_edit3("Background", list(state.background))
-    state.background = (float(bg[0]), float(bg[1]), float(bg[2]))
-    _, state.show_stats = imgui.checkbox("Statistics overlay", state.show_stats)
-    _, state.merged_live = imgui.checkbox("Merged cloud while moving", state.merged_live)
-    if imgui.is_item_hovered():
-        imgui.set_tooltip("While you drag, move a slider or play, draw the live images from at most 16k merged\n"
-                          "Gaussians where a full image does not fit in the frame (software GL); the image\n"
-                          "after you stop is always drawn from every Gaussian. Off: every Gaussian, always.")
-    remember(info, "merged_live")
-    _refinement(state, info)
-    if imgui.button("Screenshot"):
-        state.actions.append(("screenshot", None))
-    remember(info, "screenshot")
-    imgui.same_line()
-    if imgui.button("Stop recording" if info.recording else "Record MP4"):
-        state.actions.append(("record", None))
-    if info.last_screenshot:
-        imgui.text_disabled(f"saved {info.last_screenshot[-48:]}")
-    imgui.set_next_item_width(200)
-    _, _ui["session"] = imgui.input_text("##session", _ui["session"])
-    imgui.same_line()
-    if imgui.button("Save session"):
-        state.actions.append(("save_session", _ui["session"].strip()))
-    imgui.same_line()
-    if imgui.button("Load"):
-        state.actions.append(("load_session", _ui["session"].strip()))
+            state.mode = RENDER_MODES[idx]
+        remember(info, "mode")
+        _, bg = imgui.color_edit3("Background", list(state.background))
+        state.background = (float(bg[0]), float(bg[1]), float(bg[2]))
+        _, state.show_stats = imgui.checkbox("Statistics overlay", state.show_stats)
+        _, state.merged_live = imgui.checkbox("Merged cloud while moving", state.merged_live)
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("While you drag, move a slider or play, draw the live images from at most 16k merged\n"
+                              "Gaussians where a full image does not fit in the frame (software GL); the image\n"
+                              "after you stop is always drawn from every Gaussian. Off: every Gaussian, always.")
+        remember(info, "merged_live")
+        _refinement(state, info)
+        if imgui.button("Screenshot"):
+            state.actions.append(A.Screenshot())
+        remember(info, "screenshot")
+        imgui.same_line()
+        if imgui.button("Stop recording" if info.recording else "Record MP4"):
+            state.actions.append(A.ToggleRecording())
+        if info.last_screenshot:
+            imgui.text_disabled(f"saved {info.last_screenshot[-48:]}")
+        imgui.set_next_item_width(200)
+        _, self.session = imgui.input_text("##session", self.session)
+        imgui.same_line()
+        if imgui.button("Save session"):
+            state.actions.append(A.SaveSession(self.session.strip()))
+        imgui.same_line()
+        if imgui.button("Load"):
+            state.actions.append(A.LoadSession(self.session.strip()))
 
 
 LATENT_LABELS = {"off": "off (colour image)", "pca": "PCA of h (RGB)", "channel": "one channel of h"}

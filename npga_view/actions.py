@@ -1,0 +1,483 @@
+"""Actions: one small frozen dataclass per thing a user can ask for, and the table that runs them.
+
+Panels, keys and drops never call the app: they append an action (e.g. ``OpenAvatar("a.npga")``) to
+``state.actions``; once per frame the app hands each one to its `Dispatcher`, which looks up the handler
+registered for the action's *type* (each controller registers its own table). An action type nobody handles,
+a queued object that is not an action, or a field of the wrong type is an `ActionError`: raised in tests
+(``NPGA_VIEW_STRICT_ACTIONS=1``, set by tests/conftest.py), logged and shown in the window otherwise; never a
+silent no-op.
+
+Nothing here touches GL, glfw or imgui.
+"""
+
+from __future__ import annotations
+
+import dataclasses
+import logging
+import numbers
+import os
+import types
+import typing
+from collections.abc import Callable, Iterator, Mapping
+from dataclasses import dataclass, field
+from typing import Any, Literal
+
+log = logging.getLogger("npga_view.actions")
+STRICT_ENV = "NPGA_VIEW_STRICT_ACTIONS"
+
+Point2 = tuple[float, float]
+Point3 = tuple[float, float, float]
+CombineMode = Literal["replace", "add", "subtract", "intersect"]
+
+
+class ActionError(Exception):
+    """An action nobody handles, or one whose fields have the wrong types (a programming error)."""
+
+
+@dataclass(frozen=True)
+class Action:
+    """Base of every action; subclasses are frozen dataclasses whose fields are checked by `check_fields`."""
+
+
+# -- files, sessions, output -------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class OpenAvatar(Action):
+    path: str
+
+
+@dataclass(frozen=True)
+class OpenSequence(Action):
+    path: str
+
+
+@dataclass(frozen=True)
+class Screenshot(Action):
+    path: str | None = None  # None: npga-view-<time>.png in the working folder
+
+
+@dataclass(frozen=True)
+class ToggleRecording(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class SaveSession(Action):
+    path: str = "session.json"
+
+
+@dataclass(frozen=True)
+class LoadSession(Action):
+    path: str = "session.json"
+
+
+@dataclass(frozen=True)
+class LoadRig(Action):
+    path: str
+
+
+# -- camera ------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class CameraPreset(Action):
+    name: Literal["front", "three_quarter", "side", "top"]
+
+
+@dataclass(frozen=True)
+class FrameAvatar(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class ResetCamera(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class OrbitBy(Action):
+    yaw: float  # degrees
+    pitch: float
+
+
+@dataclass(frozen=True)
+class ZoomBy(Action):
+    steps: float
+
+
+@dataclass(frozen=True)
+class RollBy(Action):
+    degrees: float
+
+
+@dataclass(frozen=True)
+class CycleRigCamera(Action):
+    step: int  # +1 next, -1 previous camera of the loaded rig
+
+
+@dataclass(frozen=True)
+class FocusGaussian(Action):
+    index: int  # the orbit camera's target moves to this Gaussian's posed centre
+
+
+# -- expression, playback, bake -----------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class ResetExpression(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class RandomExpression(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class SlidersFromFrame(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class ApplyPreset(Action):
+    name: str
+
+
+@dataclass(frozen=True)
+class SavePreset(Action):
+    name: str
+
+
+@dataclass(frozen=True)
+class TogglePlay(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class StepFrames(Action):
+    delta: int
+
+
+@dataclass(frozen=True)
+class Bake(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class CancelBake(Action):
+    pass
+
+
+# -- selection (npga_core.editing) --------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class SelectTool(Action):
+    tool: Literal["rect", "lasso", "brush", "sphere", "box", "range"]
+    mode: CombineMode = "replace"
+    brush_radius: float = 20.0  # logical pixels
+
+
+@dataclass(frozen=True)
+class SelectRect(Action):
+    rect: tuple[float, float, float, float]  # x0, y0, x1, y1 in view-camera pixels
+    mode: CombineMode = "replace"
+
+
+@dataclass(frozen=True)
+class SelectLasso(Action):
+    polygon: tuple[Point2, ...]
+    mode: CombineMode = "replace"
+
+
+@dataclass(frozen=True)
+class SelectBrush(Action):
+    centres: tuple[Point2, ...]
+    radius: float
+    mode: CombineMode = "replace"
+
+
+@dataclass(frozen=True)
+class SelectSphere(Action):
+    centre: Point3
+    radius: float
+    mode: CombineMode = "replace"
+
+
+@dataclass(frozen=True)
+class SelectBox(Action):
+    lo: Point3
+    hi: Point3
+    mode: CombineMode = "replace"
+
+
+@dataclass(frozen=True)
+class SelectRange(Action):
+    attribute: str
+    lo: float
+    hi: float
+    mode: CombineMode = "replace"
+
+
+@dataclass(frozen=True)
+class SelectGrow(Action):
+    steps: int = 1
+
+
+@dataclass(frozen=True)
+class SelectShrink(Action):
+    steps: int = 1
+
+
+@dataclass(frozen=True)
+class SelectInvert(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class SelectAll(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class SelectClear(Action):
+    pass
+
+
+# -- edits --------------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class DeleteSelection(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class HideSelection(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class ShowAllHidden(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class ScaleSelectionOpacity(Action):
+    factor: float
+
+
+@dataclass(frozen=True)
+class TintSelection(Action):
+    rgb: Point3
+    mode: Literal["multiply", "blend"] = "multiply"
+    amount: float = 1.0
+
+
+@dataclass(frozen=True)
+class SetSelectionFeature(Action):
+    channel: int
+    value: float
+
+
+@dataclass(frozen=True)
+class ScaleSelectionFeature(Action):
+    channel: int
+    factor: float
+
+
+@dataclass(frozen=True)
+class PreviewFloaters(Action):
+    k: int = 8
+    distance_factor: float = 3.0
+    min_opacity: float = 0.02
+
+
+@dataclass(frozen=True)
+class ClearFloaterPreview(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class RemoveFloaters(Action):
+    k: int = 8
+    distance_factor: float = 3.0
+    min_opacity: float = 0.02
+    within_selection: bool = False
+
+
+@dataclass(frozen=True)
+class Undo(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class Redo(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class SaveEdits(Action):
+    path: str | None = None  # None: "Save" (to the last path or the source)
+    overwrite_source: bool = False  # True only once the user agreed to overwrite the file it was opened from
+
+
+@dataclass(frozen=True)
+class ExportPly(Action):
+    path: str  # the posed avatar at the current expression
+
+
+@dataclass(frozen=True)
+class RecoverEdits(Action):
+    source: str  # open the autosaved edits of this file
+
+
+@dataclass(frozen=True)
+class DiscardAutosave(Action):
+    pass
+
+
+# -- keyframes ----------------------------------------------------------------------------------------------------
+@dataclass(frozen=True)
+class NewKeyframes(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class AddExpressionKey(Action):
+    time: float
+    source: Literal["sliders", "frame", "preset"] = "sliders"
+    preset: str | None = None
+    interp: str = "smooth"
+
+
+@dataclass(frozen=True)
+class AddCameraKey(Action):
+    time: float
+
+
+@dataclass(frozen=True)
+class UpdateKey(Action):
+    track: Literal["expression", "camera"]
+    index: int
+    changes: Mapping[str, object] = field(default_factory=dict)  # time, interp, ease_in, ease_out, hold, label
+
+
+@dataclass(frozen=True)
+class RemoveKey(Action):
+    track: Literal["expression", "camera"]
+    index: int
+
+
+@dataclass(frozen=True)
+class ClearKeyframes(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class PlayKeyframes(Action):
+    playing: bool
+
+
+@dataclass(frozen=True)
+class SeekKeyframes(Action):
+    time: float
+
+
+@dataclass(frozen=True)
+class SaveKeyframes(Action):
+    path: str
+
+
+@dataclass(frozen=True)
+class LoadKeyframes(Action):
+    path: str
+
+
+# -- checking and dispatch ----------------------------------------------------------------------------------------
+def action_types() -> list[type[Action]]:
+    """Every concrete action type defined here."""
+    return [c for c in globals().values() if isinstance(c, type) and issubclass(c, Action) and c is not Action]
+
+
+def _matches(value: object, tp: Any) -> bool:
+    """Whether `value` fits the annotation `tp` (the few kinds actions use)."""
+    origin, args = typing.get_origin(tp), typing.get_args(tp)
+    if tp is typing.Any or tp is object:
+        return True
+    if tp is type(None):
+        return value is None
+    if origin in (typing.Union, types.UnionType):
+        return any(_matches(value, a) for a in args)
+    if origin is Literal:
+        return value in args
+    if tp is bool:
+        return isinstance(value, bool)
+    if tp is int:
+        return isinstance(value, numbers.Integral) and not isinstance(value, bool)
+    if tp is float:
+        return isinstance(value, numbers.Real) and not isinstance(value, bool)
+    if tp is str:
+        return isinstance(value, str)
+    if origin is tuple:
+        if not isinstance(value, tuple):
+            return False
+        if len(args) == 2 and args[1] is Ellipsis:
+            return all(_matches(v, args[0]) for v in value)
+        return len(value) == len(args) and all(_matches(v, a) for v, a in zip(value, args, strict=True))
+    if origin in (Mapping, dict) or tp in (Mapping, dict):
+        return isinstance(value, Mapping)
+    raise TypeError(f"actions cannot check fields of type {tp!r}")
+
+
+_HINTS: dict[type, dict[str, Any]] = {}
+
+
+def check_fields(action: object) -> None:
+    """ActionError unless `action` is an `Action` whose every field has its annotated type."""
+    if not isinstance(action, Action):
+        raise ActionError(f"not an action: {action!r:.80}")
+    cls = type(action)
+    hints = _HINTS.get(cls)
+    if hints is None:
+        hints = _HINTS[cls] = typing.get_type_hints(cls)
+    for f in dataclasses.fields(action):
+        value = getattr(action, f.name)
+        if not _matches(value, hints[f.name]):
+            raise ActionError(f"{cls.__name__}.{f.name}: expected {hints[f.name]}, got {value!r:.80}")
+
+
+Handler = Callable[[Any], None]
+
+
+class Dispatcher:
+    """Runs each action by the handler registered for its type (`register`); see the module docstring."""
+
+    def __init__(self, strict: bool | None = None):
+        self.strict = os.environ.get(STRICT_ENV) == "1" if strict is None else strict
+        self.table: dict[type[Action], Handler] = {}
+
+    def register(self, handlers: Mapping[type[Action], Handler]) -> None:
+        """Add a controller's table; an action type handled twice is an error."""
+        twice = sorted(t.__name__ for t in handlers if t in self.table)
+        if twice:
+            raise ActionError(f"actions handled twice: {', '.join(twice)}")
+        self.table.update(handlers)
+
+    def dispatch(self, action: object) -> None:
+        """Check `action` and run its handler; ActionError for an unknown type or bad fields. Errors of the
+        handler (a bad file, a refused edit) propagate for the caller to report."""
+        check_fields(action)
+        handler = self.table.get(type(action))
+        if handler is None:
+            raise ActionError(f"no handler for the action {type(action).__name__}")
+        handler(action)
+
+    def run_all(self, actions: list[object], report: Callable[[str], None],
+                expected: tuple[type[BaseException], ...] = ()) -> None:
+        """Dispatch each action; `expected` errors (bad files, refused edits) and, unless strict, ActionErrors go
+        to `report` (the window's error list); a strict dispatcher raises ActionError."""
+        for action in actions:
+            try:
+                self.dispatch(action)
+            except ActionError as e:
+                if self.strict:
+                    raise
+                log.error("%s", e)
+                report(f"internal error: {e}")
+            except expected as e:
+                report(str(e))
+
+    def __iter__(self) -> Iterator[type[Action]]:
+        return iter(self.table)
