@@ -30,6 +30,7 @@ from npga_view.actions import Dispatcher
 from npga_view.controllers.actions import ActionController
 from npga_view.controllers.bake import BakeController
 from npga_view.controllers.editing import EditController, highlight
+from npga_view.controllers.live_link import LiveLinkController
 from npga_view.controllers.posing import PoseController
 from npga_view.controllers.recording import Recorder
 from npga_view.controllers.refining import RefineController
@@ -127,7 +128,9 @@ class ViewerApp:
         self.edits = EditController(self, self.code_for_keyframe)
         self.sequence_codes = SequenceCodes(self.state, lambda: self.sequence)
         self.bakes = BakeController(self.state, lambda: self.engine, self.sequence_codes)
-        self.poses = PoseController(self, self.sequence_codes, self.bakes, keyframe_code=self.edits.keyframe_code,
+        self.live = LiveLinkController(self, wake=glfw.post_empty_event)  # its code comes before keyframes
+        self.poses = PoseController(self, self.sequence_codes, self.bakes,
+                                    keyframe_code=self.live.code_or(self.edits.keyframe_code),
                                     playback_previews=not self.legacy)
         self.recorder = Recorder(lambda: self.read_window(viewport_only=True))
         self.actions = ActionController(self, self.poses, self.bakes, self._toggle_recording)
@@ -136,6 +139,7 @@ class ViewerApp:
         self.dispatcher = Dispatcher()
         self.dispatcher.register(self.actions.handlers())
         self.dispatcher.register(self.edits.handlers())
+        self.dispatcher.register(self.live.handlers())
         self.panels = Panels(files=FilesPanel(browse=os.getcwd()))
         self.inspector: Inspector | None = None
         self._inspect_key: tuple | None = None
@@ -498,6 +502,7 @@ class ViewerApp:
         info.bake, info.bake_state = self.bakes.status, self.bakes.state()
         self.poses.publish(info)
         self.edits.publish(info)
+        self.live.publish(info)
 
     def _quiet(self) -> bool:
         """Nothing to draw in this window until something arrives: the view's image is on screen and nothing is
@@ -528,6 +533,7 @@ class ViewerApp:
         self._run_actions()
         self.edits.after_actions()
         self.edits.tick(dt)
+        self.live.update()  # the newest packet, asked for in this same frame
         self.poses.update(dt)
         self._publish_info()
         self._refresh_inspect()
@@ -544,7 +550,7 @@ class ViewerApp:
         imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
         glfw.swap_buffers(self.window)
         self.frames += 1
-        self._was_quiet = self._quiet()
+        self._was_quiet = self._quiet() and not self.live.busy()
         if glfw.window_should_close(self.window):
             self.should_close = True
 
@@ -606,6 +612,7 @@ class ViewerApp:
         """Unsaved edits autosaved, recording stopped, worker stopped (its shared memory unlinked), window
         closed. The path of a window close and of the close signals; safe to call twice."""
         self.recorder.stop()
+        self.live.close()
         session = self.edits.session
         if session is not None and session.dirty:
             try:

@@ -20,7 +20,9 @@ import numpy as np
 from npga_core.files.blendshape_names import ARKIT_52, NameMatch, match_names
 from npga_core.posing.livelink import DEFAULT_PORT, LiveLinkReceiver
 from npga_core.posing.smoothing import OneEuro
+from npga_view import actions as A
 from npga_view.controllers.host import ViewerHost
+from npga_view.panels.info import AppInfo
 
 #: How long after the last packet the window keeps drawing at full rate (no idle wait between frames).
 BUSY_S = 0.5
@@ -151,8 +153,10 @@ class LiveLinkController:
     def code_or(self, fallback: Callable[[], np.ndarray | None]) -> Callable[[], np.ndarray | None]:
         """A code source for the pose controller: the live code while listening, else `fallback`'s."""
         def source() -> np.ndarray | None:
-            if self.receiver is not None and self.code is not None:
-                return self.code
+            a, z = self.host.avatar, self.code
+            if self.receiver is not None and z is not None and a is not None \
+                    and len(z) in (a.code_dim, a.code_dim - a.condition_dim):
+                return z
             return fallback()
         return source
 
@@ -187,21 +191,24 @@ class LiveLinkController:
         n = rx.stop_recording(p)
         return f"recorded {n} frames to {p}"
 
-    def handle(self, name: str, arg) -> bool:
-        """Carry out a Live Link action of the panel; False for other actions."""
-        if not name.startswith("live_"):
-            return False
-        if name == "live_start":
-            self.start(arg)
-        elif name == "live_stop":
-            self.stop()
-        elif name == "live_neutral":
-            self.neutral()
-        elif name == "live_gain":
-            self.set_gain(*arg)
-        elif name == "live_record_start":
-            self.record(None)
-        elif name == "live_record_stop":
-            msg = self.record(arg)
-            self.status = msg or self.status
-        return True
+    def handlers(self) -> dict[type[A.Action], Callable]:
+        """The Live Link actions (npga_view/actions.py) this controller carries out."""
+        return {
+            A.LiveLinkStart: lambda a: self.start(a.address),
+            A.LiveLinkStop: lambda a: self.stop(),
+            A.LiveLinkNeutral: lambda a: self.neutral(),
+            A.LiveLinkGain: lambda a: self.set_gain(a.name, a.gain),
+            A.LiveLinkRecord: self._record,
+        }
+
+    def _record(self, a: A.LiveLinkRecord) -> None:
+        msg = self.record(a.path)
+        if msg:
+            self.status = msg
+
+    def publish(self, info: AppInfo) -> None:
+        """Copy what the panel and the overlay show into the frame's display snapshot."""
+        info.live_link, info.live_counters = self.status, self.counters_line()
+        info.live_listening = self.receiver is not None
+        info.live_recording = self.receiver is not None and self.receiver.recording
+        info.live_unmatched = self.unmatched

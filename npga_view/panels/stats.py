@@ -36,6 +36,8 @@ def _body(info: AppInfo) -> None:
     imgui.text(f"Gaussians: {total:,} total, {info.gaussians_drawn:,} in front of the camera")
     imgui.text(f"UI: {info.fps:5.1f} fps" + ("   posing..." if info.posing else ""))
     imgui.text(f"renderer: {info.renderer_path}")
+    if info.live_counters:
+        imgui.text(info.live_counters)
     amber = imgui.ImVec4(1.0, 0.8, 0.3, 1.0)
     if info.canonical:
         imgui.text_colored(amber, "canonical cloud (the first pose is on its way)")
