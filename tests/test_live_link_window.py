@@ -166,3 +166,34 @@ def test_recorded_take_reopens_with_the_sent_weights(app, tmp_path):
     assert len(seq) == 6
     click(app, "live_open_take")
     assert app.sequence is not None and len(app.sequence) == 6, app.state.errors
+
+
+def test_neutral_and_gains_act_on_the_stream(app):
+    """Neutral: the packet on hand becomes the rest pose (the same packet then poses the basis offset); a gain
+    scales its channel."""
+    from npga_view import actions as A
+
+    from .test_gui import click, run_until
+
+    addr = _listen(app)
+    basis = app.avatar.blendshapes
+    with _sender() as s:
+        s.sendto(pylivelinkface_packet(values(jawOpen=0.5), 3_000_000), addr)
+        assert run_until(app, lambda: app.live.taken >= 1, timeout=20)
+        click(app, "live_neutral")
+        s.sendto(pylivelinkface_packet(values(jawOpen=0.5), 3_000_001), addr)
+        assert run_until(app, lambda: app.live.taken >= 2, timeout=20)
+        np.testing.assert_allclose(app.live.code, basis.offset, atol=1e-5)
+        app.state.actions.append(A.LiveLinkGain("JawOpen", 2.0))
+        app.step()
+        s.sendto(pylivelinkface_packet(values(jawOpen=0.75), 3_000_002), addr)  # (0.75 - 0.5) / 0.5 = 0.5
+        assert run_until(app, lambda: app.live.taken >= 3, timeout=20)
+    np.testing.assert_allclose(app.live.code, basis.codes(np.array([1.0, 0.0, 0.0, 0.0])), atol=1e-5)
+
+
+def test_bad_live_link_address_is_one_line_and_exit_2(capsys):
+    from npga_view.cli.main import main
+
+    assert main(["view", "demo", "--live-link", "localhost:http", "--quit-after-frames", "1"]) == 2
+    err = capsys.readouterr().err.strip()
+    assert "\n" not in err and "--live-link" in err and "[HOST:]PORT" in err
