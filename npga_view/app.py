@@ -361,6 +361,8 @@ class ViewerApp:
             shown = self.poses.shown_frame
             frame = shown if shown is not None else self.poses.frame
             cam = posed_camera(cam, head_transform(seq, frame, relative=not rig))
+        elif self.live.head_transform() is not None:  # the Live Link stream's head angles
+            cam = posed_camera(cam, self.live.head_transform())
         return cam
 
     def _mouse(self) -> None:

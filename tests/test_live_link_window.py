@@ -197,3 +197,22 @@ def test_bad_live_link_address_is_one_line_and_exit_2(capsys):
     assert main(["view", "demo", "--live-link", "localhost:http", "--quit-after-frames", "1"]) == 2
     err = capsys.readouterr().err.strip()
     assert "\n" not in err and "--live-link" in err and "[HOST:]PORT" in err
+
+
+def test_head_angles_move_the_head(app):
+    """HeadYaw/HeadPitch/HeadRoll (channels 52-54) move the head as a take's head angles do."""
+    from npga_core.files.arkit_takes import head_pose
+
+    from .test_gui import run_until
+
+    addr = _listen(app)
+    plain = app.current_camera().world_to_camera.copy()
+    v = values(jawOpen=0.2)
+    v[52:55] = (0.3, -0.1, 0.05)
+    with _sender() as s:
+        s.sendto(pylivelinkface_packet(v, 3_000_000), addr)
+        assert run_until(app, lambda: app.live.taken >= 1, timeout=20)
+    moved = app.current_camera().world_to_camera
+    np.testing.assert_allclose(moved, plain @ head_pose(np.array([[0.3, -0.1, 0.05]]))[0], atol=1e-5)
+    app.state.timeline.head_pose = False  # the Timeline's Head pose switch turns it off
+    np.testing.assert_allclose(app.current_camera().world_to_camera, plain, atol=1e-9)

@@ -5,7 +5,8 @@ Once per UI frame `update` polls `LiveLinkReceiver.latest()`; a new packet's wei
 blendshape basis (`avatar.blendshapes`, names matched by `npga_core.files.blendshape_names`) to a code, which is
 smoothed as the Timeline panel smooths sequences (none, exponential or one-euro, over the packets' own frame
 times) and handed to the pose controller in the same frame (`code_or`), which asks the worker for it the way it
-does for sliders and playback. Neutral, gains and recording are the receiver's.
+does for sliders and playback. The head angles move the head as a take's do (`head_transform`, applied to the
+view's camera by the app). Neutral, gains and recording are the receiver's.
 """
 
 from __future__ import annotations
@@ -17,6 +18,7 @@ from pathlib import Path
 
 import numpy as np
 
+from npga_core.files.arkit_takes import head_pose
 from npga_core.files.blendshape_names import ARKIT_52, NameMatch, match_names
 from npga_core.posing.livelink import DEFAULT_PORT, LiveLinkReceiver
 from npga_core.posing.smoothing import OneEuro
@@ -50,6 +52,7 @@ class LiveLinkController:
         self.wake = wake  # called from the receiver thread when a packet arrives (wakes an idle window)
         self.receiver: LiveLinkReceiver | None = None
         self.code: np.ndarray | None = None  # the newest (smoothed) code
+        self.head: np.ndarray | None = None  # canonical -> world 4x4 of the newest packet's head angles
         self.status = "off"
         self.unmatched = ""  # the names the avatar's basis lacks (reported once per start)
         self.last_packet_t: float | None = None  # frame time of the newest packet taken
@@ -89,7 +92,7 @@ class LiveLinkController:
     def stop(self) -> None:
         if self.receiver is not None:
             self.receiver.close()
-        self.receiver, self.code = None, None
+        self.receiver, self.code, self.head = None, None, None
         self.status = "off"
 
     close = stop
@@ -131,6 +134,10 @@ class LiveLinkController:
         code = basis.codes(self._match[1].apply(weights[None]))[0]
         dt = 0.0 if self.last_packet_t is None else (t - self.last_packet_t) % 86400.0
         self.code = self._smooth(code, dt)
+        angles = rx.angles()
+        head = angles[:3] if angles is not None else None
+        # the head yaw, pitch and roll move the head as a take's do (arkit_takes.head_pose); all 0: none sent
+        self.head = head_pose(head[None])[0] if head is not None and np.any(head) else None
         self.last_packet_t = t
         self.taken += 1
 
@@ -149,6 +156,10 @@ class LiveLinkController:
             self._exp = code.copy() if self._exp is None else a * code + (1 - a) * self._exp
             return self._exp.astype(np.float32)
         return code
+
+    def head_transform(self) -> np.ndarray | None:
+        """The live head pose to apply to the view (None when not listening or no head angles came)."""
+        return self.head if self.receiver is not None and self.host.state.timeline.head_pose else None
 
     def code_or(self, fallback: Callable[[], np.ndarray | None]) -> Callable[[], np.ndarray | None]:
         """A code source for the pose controller: the live code while listening, else `fallback`'s."""

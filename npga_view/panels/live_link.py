@@ -1,6 +1,6 @@
 """The Live Link part of the Timeline panel: listen for a Live Link Face stream (the iPhone app, `npga-view
-webcam`), its status and counters, neutral, smoothing (the Timeline's), per-channel gains, and recording the
-stream to a take that reopens as a sequence. Actions go to `LiveLinkController`."""
+webcam`), its status and counters, neutral, head pose on/off and smoothing (the Timeline's), per-channel gains,
+and recording the stream to a take that reopens as a sequence. Actions go to `LiveLinkController`."""
 
 from __future__ import annotations
 
@@ -50,6 +50,9 @@ class LiveLinkPanel:
                 imgui.set_tooltip("Take the current weights as the rest pose")
             imgui.same_line()
             self._record(state, info)
+            _, state.timeline.head_pose = imgui.checkbox("Head pose##live", state.timeline.head_pose)
+            if imgui.is_item_hovered():
+                imgui.set_tooltip("Move the head by the stream's head yaw, pitch and roll (relative to the neutral)")
             self._smoothing(state)
             self._gains(state)
         if self.recorded and not info.live_recording:
