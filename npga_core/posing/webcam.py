@@ -110,11 +110,16 @@ def landmarker(model: str | Path) -> Callable[[np.ndarray, int], Any]:
 
 def worker(model: str, host: str, port: int, camera: int | str, parent_pid: int) -> None:
     """The child process: dies with its parent (`lifetime.start_parent_watch`), streams until the camera ends."""
+    import sys
+
     from npga_core.posing.lifetime import start_parent_watch
 
     start_parent_watch(parent_pid, [])
     sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
     try:
         stream(camera_frames(camera), landmarker(model), lambda b: sock.sendto(b, (host, port)))
+    except (RuntimeError, ValueError, OSError) as e:  # no camera, a model MediaPipe refuses, a bad address
+        print(f"npga-view webcam: error: {' '.join(str(e).split())}", file=sys.stderr)
+        sys.exit(2)
     finally:
         sock.close()

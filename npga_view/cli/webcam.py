@@ -55,4 +55,6 @@ def run(args: argparse.Namespace) -> int:
     except KeyboardInterrupt:
         proc.terminate()
         proc.join(timeout=5)
-    return 0 if proc.exitcode in (0, -signal.SIGTERM) else 1
+    if proc.exitcode in (0, -signal.SIGTERM):
+        return 0
+    return 2 if proc.exitcode == 2 else 1  # 2: the child printed its one-line error
