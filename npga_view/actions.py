@@ -388,6 +388,33 @@ class LoadKeyframes(Action):
     path: str
 
 
+# -- Live Link Face stream (npga_view/controllers/live_link.py) -------------------------------------------------
+@dataclass(frozen=True)
+class LiveLinkStart(Action):
+    address: str  # "[HOST:]PORT", loopback when no host is given
+
+
+@dataclass(frozen=True)
+class LiveLinkStop(Action):
+    pass
+
+
+@dataclass(frozen=True)
+class LiveLinkNeutral(Action):
+    """Take the newest packet's weights as the rest pose."""
+
+
+@dataclass(frozen=True)
+class LiveLinkGain(Action):
+    name: str  # an ARKit shape, any spelling
+    gain: float  # 0..10
+
+
+@dataclass(frozen=True)
+class LiveLinkRecord(Action):
+    path: str | None = None  # None: start recording; a path: stop and write the take (.csv)
+
+
 # -- checking and dispatch ----------------------------------------------------------------------------------------
 def action_types() -> list[type[Action]]:
     """Every concrete action type defined here."""

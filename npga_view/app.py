@@ -29,11 +29,12 @@ from npga_view.comparison.controller import CompareController
 from npga_view.controllers.actions import ActionController
 from npga_view.controllers.bake import BakeController
 from npga_view.controllers.editing import EditController, highlight
+from npga_view.controllers.live_link import LiveLinkController
 from npga_view.controllers.posing import PoseController
 from npga_view.controllers.recording import Recorder
 from npga_view.controllers.refining import RefineController
 from npga_view.controllers.sequence_codes import SequenceCodes
-from npga_view.imgui_glfw import imgui
+from npga_view.imgui_glfw import glfw, imgui
 from npga_view.inspection_cache import InspectionCache
 from npga_view.panels import Panels
 from npga_view.panels.files import FilesPanel, open_action
@@ -101,19 +102,22 @@ class ViewerApp:
         self.edits = EditController(self)
         self.sequence_codes = SequenceCodes(self.state, lambda: self.sequence)
         self.bakes = BakeController(self.state, lambda: self.engine, self.sequence_codes)
-        self.poses = PoseController(self, self.sequence_codes, self.bakes, keyframe_code=self.edits.keyframe_code,
+        self.live = LiveLinkController(self, wake=glfw.post_empty_event)  # its code comes before keyframes
+        self.poses = PoseController(self, self.sequence_codes, self.bakes,
+                                    keyframe_code=self.live.code_or(self.edits.keyframe_code),
                                     playback_previews=not self.legacy)
         self.recorder = Recorder(lambda: self.read_window(viewport_only=True))
         self.actions = ActionController(self, self.poses, self.bakes, self._toggle_recording)
         self.actions.load_presets()
         self.view_camera = ViewCamera(self.state, self._viewport, self.edits, lambda: self.actions.rig,
-                                      lambda: self.sequence, self.poses.frame_on_screen)
+                                      lambda: self.sequence, self.poses.frame_on_screen, self.live.head_transform)
         self.input = ViewInput(self.state, self.window.scale, self._viewport, self.edits, self.view_camera,
                                self.pick, self.compare.drag_divider)
         # every action type -> its controller's handler (npga_view/actions.py); strict in tests
         self.dispatcher = Dispatcher()
         self.dispatcher.register(self.actions.handlers())
         self.dispatcher.register(self.edits.handlers())
+        self.dispatcher.register(self.live.handlers())
         self.dispatcher.register(self.compare.handlers())
         self.panels = Panels(files=FilesPanel(browse=os.getcwd()))
         self._publish_info()
@@ -292,6 +296,7 @@ class ViewerApp:
         info.inspect = self.inspection.figures
         self.poses.publish(info)
         self.edits.publish(info)
+        self.live.publish(info)
 
     def _quiet(self) -> bool:
         """Nothing to draw in this window until something arrives: the view's image is on screen and nothing is
@@ -318,6 +323,7 @@ class ViewerApp:
         self._run_actions()
         self.edits.after_actions()
         self.edits.tick(dt)
+        self.live.update()  # the newest packet, asked for in this same frame
         self.poses.update(dt)
         if self._posed is not None and self.inspection.stale(self.state.inspect, self.current_camera):
             self.show(self._posed)  # the Inspect settings (or, for depth colouring, the camera) changed
@@ -330,7 +336,7 @@ class ViewerApp:
         self.recorder.frame()
         window.end_frame()
         self.frames += 1
-        self._was_quiet = self._quiet()
+        self._was_quiet = self._quiet() and not self.live.busy()
         if window.close_requested():
             self.should_close = True
 
@@ -386,6 +392,7 @@ class ViewerApp:
         """Unsaved edits autosaved, recording stopped, worker stopped (its shared memory unlinked), window
         closed. The path of a window close and of the close signals; safe to call twice."""
         self.recorder.stop()
+        self.live.close()
         session = self.edits.session
         if session is not None and session.dirty:
             try:

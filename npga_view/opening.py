@@ -122,7 +122,7 @@ def start_engine(app: OpeningHost, path: str) -> None:
 def open_sequence(app: OpeningHost, path: str) -> bool:
     """Load a sequence; refused (with both dimensions) if it does not fit the avatar."""
     try:
-        seq = load_sequence(path)
+        seq = load_sequence(path, basis=None if app.avatar is None else app.avatar.blendshapes)
         if app.avatar is None or app.avatar.code_dim == 0:
             raise AvatarFileError(path, "open an animatable avatar first (this one has no dynamics)")
         seq.check_dim(app.avatar.code_dim, path)

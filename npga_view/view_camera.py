@@ -30,13 +30,14 @@ class ViewCamera:
 
     def __init__(self, state: ViewerState, viewport: Callable[[], tuple[int, int, int, int]],
                  keyframes: EditController, rig: Callable[[], dict], sequence: Callable[[], ExpressionSequence | None],
-                 frame_on_screen: Callable[[], int]):
+                 frame_on_screen: Callable[[], int], live_head: Callable[[], np.ndarray | None] = lambda: None):
         self._state = state
         self._viewport = viewport
         self._kf = keyframes
         self._rig = rig
         self._sequence = sequence
         self._frame_on_screen = frame_on_screen
+        self._live_head = live_head  # the Live Link stream's head transform, when it sends angles
 
     def current(self, ignore_keyframes: bool = False) -> Camera:
         """The splat view's camera (see the module docstring)."""
@@ -54,6 +55,8 @@ class ViewCamera:
         seq = self._sequence()
         if seq is not None and st.follow_sequence and st.timeline.head_pose and has_head_pose(seq):
             cam = posed_camera(cam, head_transform(seq, self._frame_on_screen(), relative=not use_rig))
+        elif (head := self._live_head()) is not None:  # the Live Link stream's head angles
+            cam = posed_camera(cam, head)
         return cam
 
     def frame_avatar(self, avatar: Avatar | None, reset: bool = False) -> None:

@@ -320,3 +320,99 @@ def test_eye_blink_left_closes_the_demos_left_eye(tmp_path):
     moved = np.linalg.norm(blink - rest, axis=1) > 0.002  # 2 mm
     assert moved.sum() > 50
     assert (rest[moved, 0] > 0).mean() > 0.95  # +x is the subject's left (npga_core/demo/ict.py GazeModel)
+
+
+def _take_files(tmp_path, w: np.ndarray) -> dict[str, object]:
+    """The same T x 52 weights (over ARKIT_52) as a Live Link Face CSV in the app's column order, one in the
+    packet order (PyLiveLinkFace, pylivelinkface.py lines 12-73: JawLeft before JawRight), and a LAM JSON."""
+    paths = {}
+    by_name = [dict(zip(ARKIT_52, row, strict=True)) for row in w]
+    for name, cols in (("app_order", CSV_SHAPES), ("packet_order", [n[0].upper() + n[1:] for n in ARKIT_52])):
+        lines = [",".join(["Timecode", "BlendShapeCount", *cols])]
+        for k, vals in enumerate(by_name):
+            lines.append(",".join([f"10:00:00:{k:02d}.000", "61",
+                                   *(f"{vals[canonical_arkit(c)]:.9g}" for c in cols)]))
+        p = tmp_path / f"{name}.csv"
+        p.write_text("\n".join(lines) + "\n")
+        paths[name] = p
+    doc = {"names": list(ARKIT_52), "metadata": {"fps": 60, "frame_count": len(w)},
+           "frames": [{"weights": row.tolist(), "time": k / 60, "rotation": []} for k, row in enumerate(w)]}
+    paths["lam_json"] = tmp_path / "lam.json"
+    paths["lam_json"].write_text(json.dumps(doc))
+    return paths
+
+
+@pytest.mark.skipif(not DEMO_AVATAR.is_file(), reason="demo not built")
+def test_the_demo_file_carries_its_basis():
+    """The bundled .npga stores the map it is built with (format version 3), equal to the one derived from the
+    build's seed; `info` shows it."""
+    from npga_core.demo.basis import basis_from_provenance
+    from npga_core.files.checkpoint import read_header
+    from npga_core.files.loading import load_avatar
+
+    avatar = load_avatar("demo")
+    b = avatar.blendshapes
+    assert b is not None and list(b.names) == ICT_53 and b.code_dim == avatar.code_dim
+    ref = basis_from_provenance(avatar.provenance)
+    np.testing.assert_allclose(b.matrix, ref.matrix, atol=1e-7)
+    np.testing.assert_allclose(b.offset, ref.offset, atol=1e-7)
+    assert read_header(DEMO_AVATAR)[0]["format_version"] == 3
+
+
+@pytest.mark.skipif(not DEMO_AVATAR.is_file(), reason="demo not built")
+def test_every_frame_of_each_take_layout_poses_the_demo_as_its_weights_say(tmp_path, capsys):
+    """Both CSV column orders and a JSON take: every frame's code is the demo's map of its weights, and `export
+    --sequence TAKE --frame K` writes the same Gaussians as `export --expr z` (the avatar's own basis, no flag)."""
+    from npga_core.files.loading import load_avatar
+    from npga_core.files.ply import read_ply
+    from npga_view.cli.main import main
+
+    basis = load_avatar("demo").blendshapes
+    rng = np.random.default_rng(7)
+    w = rng.uniform(0, 1, (4, 52)) * (rng.uniform(0, 1, (4, 52)) < 0.3)
+    w[:, ARKIT_52.index("tongueOut")] = 0.0  # the demo has no tongueOut
+    want = basis.codes(match_names(ARKIT_52, basis.names).apply(w))
+    assert main(["info", "demo"]) == 0
+    assert "blendshapes: 53 -> 100-D codes" in capsys.readouterr().out
+    for name, path in _take_files(tmp_path, w).items():
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            seq = load_sequence(path, basis=basis)
+        assert len(seq) == 4, name
+        np.testing.assert_allclose(seq.codes, want, atol=1e-6, err_msg=name)
+        k = 2
+        z = tmp_path / "z.npy"
+        np.save(z, want[k])
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            assert main(["export", "demo", "--out", str(tmp_path / "a.ply"), "--sequence", str(path),
+                         "--frame", str(k)]) == 0
+        assert main(["export", "demo", "--out", str(tmp_path / "b.ply"), "--expr", str(z)]) == 0
+        a, c = read_ply(tmp_path / "a.ply"), read_ply(tmp_path / "b.ply")
+        np.testing.assert_allclose(a.means, c.means, atol=1e-6, err_msg=name)
+        np.testing.assert_allclose(a.sh, c.sh, atol=1e-6, err_msg=name)
+
+
+def test_export_uses_the_avatars_own_basis(tmp_path):
+    """A take opened on an avatar whose file carries a basis goes through that basis, not the demo's."""
+    from npga_core.files.checkpoint import save_avatar
+    from npga_core.model.synthetic import make_synthetic_avatar
+    from npga_view.cli.export import expression_code
+    from npga_view.cli.main import build_parser
+
+    avatar = make_synthetic_avatar(20, code_dim=6, hidden=8, depth=2, n_components=3)
+    avatar.blendshapes = BlendshapeBasis(("jawOpen", "eyeBlinkLeft"), np.arange(12.0).reshape(6, 2),
+                                         np.full(6, 0.5), "test")
+    path = tmp_path / "own.npga"
+    save_avatar(avatar, path)
+    take = tmp_path / "t.csv"
+    write_csv(take, [("10:00:00:00.000", {"JawOpen": 0.25, "EyeBlinkLeft": 1.0})])
+    from npga_core.files.loading import load_avatar
+
+    loaded = load_avatar(path)
+    args = build_parser().parse_args(["export", str(path), "--out", str(tmp_path / "o.ply"), "--sequence",
+                                      str(take), "--frame", "0"])
+    with warnings.catch_warnings():
+        warnings.simplefilter("ignore")
+        z, _ = expression_code(args, loaded)
+    np.testing.assert_allclose(z, avatar.blendshapes.codes(np.array([0.25, 1.0])), atol=1e-6)

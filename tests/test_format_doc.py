@@ -180,3 +180,28 @@ def test_numpy_reference_matches_the_code(tmp_path, rotation_op, activation):
     for a, b in ((ref["means"], canon.means), (ref["log_scales"], canon.log_scales), (ref["sh"], canon.sh),
                  (ref["opacity_logits"], canon.opacity_logits), (ref["latent"], canon.latent)):
         assert np.abs(a - b).max() > 1e-3
+
+
+# --------------------------------------------------------------------------------------------------
+# section 16: the blendshape basis (format version 3)
+
+BLENDSHAPES_HEADING = "## 16. Format version 3: a blendshape basis"
+
+
+def test_blendshape_section_matches_the_code(tmp_path):
+    from npga_core.files.checkpoint import FORMAT_VERSION
+    from npga_core.model.blendshapes import BlendshapeBasis
+
+    avatar = make_synthetic_avatar(20, code_dim=6, hidden=8, depth=2, n_components=3)
+    avatar.blendshapes = BlendshapeBasis(("jawOpen", "eyeBlinkLeft"), np.ones((6, 2)), np.zeros(6), "doc")
+    path = tmp_path / "bs.npga"
+    save_avatar(avatar, path)
+    header = read_header(path)[0]
+    assert header["format_version"] == FORMAT_VERSION == 3
+    section = _section(BLENDSHAPES_HEADING)
+    rows = dict(re.findall(r"^\|\s*`(blendshapes\.[^`]+)`\s*\|[^|]*\|\s*(\w+)\s*\|", section, re.M))
+    implied = {n: dt for n, (dt, _) in expected_tensors(header).items() if n.startswith("blendshapes.")}
+    assert rows == implied
+    keys = set(re.findall(r"^\|\s*`(\w+)`\s*\|", section.split("### `blendshapes`")[1].split("| name |")[0], re.M))
+    assert keys == set(header["blendshapes"])
+    assert "currently > 3" in _section("## 8. Validation: what the reader rejects")

@@ -22,6 +22,7 @@ import numpy as np
 import torch
 
 from npga_core.demo import train as tr
+from npga_core.demo.basis import basis_from_provenance, basis_of_map
 from npga_core.demo.canonical import FEATURE_DIM, build_canonical
 from npga_core.demo.colors import eyelid_mask, lip_weight
 from npga_core.demo.expression_map import ExpressionMap
@@ -31,7 +32,8 @@ from npga_core.demo.readme import DEFAULT_OUT, write_readme
 from npga_core.demo.sampling import interpolate, label_iris, uniform_samples
 from npga_core.demo.sequences import build_sequences
 from npga_core.demo.targets import AppearanceTargets, HeadTargets
-from npga_core.files.checkpoint import save_avatar
+from npga_core.files.basis_file import read_expression_map
+from npga_core.files.checkpoint import read_avatar, save_avatar
 from npga_core.inspection.graph import knn
 from npga_core.model.avatar import Avatar
 from npga_core.model.dynamics import Dynamics
@@ -167,7 +169,8 @@ def build(out: Path, seed: int = 0, cfg: BuildConfig | None = None, ict: Path | 
                    f"torch {torch.__version__}",
     }
     summary["build_seconds"] = round(time.perf_counter() - t_start, 1)
-    avatar = Avatar(cloud, Dynamics(net_f, net_g), expression=space, provenance=summary, units="m")
+    avatar = Avatar(cloud, Dynamics(net_f, net_g), expression=space, provenance=summary, units="m",
+                    blendshapes=basis_of_map(emap))
     save_avatar(avatar, out / "avatar.npga")
     for name, seq in sequences.items():
         seq.save(seq_dir / f"{name}.npzseq")
@@ -177,6 +180,23 @@ def build(out: Path, seed: int = 0, cfg: BuildConfig | None = None, ict: Path | 
     size = (out / "avatar.npga").stat().st_size / 2**20
     stamp(f"wrote {out} (avatar.npga {size:.1f} MiB, {len(sequences)} sequences)")
     return summary
+
+
+def attach_basis(out: str | Path) -> dict:
+    """Give a built ``out/avatar.npga`` its blendshape basis (the build's expression map, as written to
+    ``expression_map.npz`` and as derived from the seed in its provenance: both must agree) without retraining;
+    the stages ``base`` and ``refine`` write it themselves. Returns a short report."""
+    out = Path(out)
+    path = out / "avatar.npga"
+    avatar = read_avatar(path)
+    basis = read_expression_map(out / "expression_map.npz")
+    derived = basis_from_provenance(avatar.provenance, path)
+    if derived.names != basis.names or not np.allclose(derived.matrix, basis.matrix, atol=1e-6) \
+            or not np.allclose(derived.offset, basis.offset, atol=1e-6):
+        raise ValueError(f"{out / 'expression_map.npz'} is not the map of {path}'s seed")
+    avatar.blendshapes = basis
+    save_avatar(avatar, path)
+    return {"blendshapes": len(basis.names), "code_dim": basis.code_dim}
 
 
 def main(argv: list[str] | None = None) -> int:
@@ -189,9 +209,10 @@ def main(argv: list[str] | None = None) -> int:
     p.add_argument("--refine-threads", type=int, default=1,
                    help="torch CPU threads of the refine stage (default 1: small tensors, measured faster on a "
                    "busy 2-core machine)")
-    p.add_argument("--stage", choices=("all", "base", "refine"), default="all",
+    p.add_argument("--stage", choices=("all", "base", "refine", "basis"), default="all",
                    help="base: cloud, F, G, sequences; refine: latent h, G's latent block and the screen-space CNN "
-                   "on top of OUT/avatar.npga; all: both (default)")
+                   "on top of OUT/avatar.npga; all: both (default); basis: only add the blendshape basis "
+                   "(the expression map) to an OUT/avatar.npga built before bases were stored")
     args = p.parse_args(argv)
     from npga_core.demo.refine_stage import refine  # torch-heavy: imported only when the build runs
 
@@ -201,6 +222,8 @@ def main(argv: list[str] | None = None) -> int:
             torch.set_num_threads(args.threads)
             summary = build(args.out, args.seed, ict=args.ict, quick=args.quick)
             report |= {"build_seconds": summary["build_seconds"], "f_error_mm": summary["f_error_mm"]["held_out"]}
+        if args.stage == "basis":
+            report |= attach_basis(args.out)
         if args.stage in ("all", "refine"):
             torch.set_num_threads(args.refine_threads)
             summary = refine(args.out, args.seed, ict=args.ict, quick=args.quick)

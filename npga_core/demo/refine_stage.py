@@ -473,7 +473,7 @@ def refine(out: Path, seed: int = 0, cfg: RefineConfig | None = None, ict: Path 
     summary["seconds"] = round(time.perf_counter() - t_start, 1)
     prov["refine"] = summary
     result = Avatar(new_cloud, dyn, cnn=model.cnn.eval(), expression=avatar.expression, provenance=prov,
-                    units=avatar.units)
+                    units=avatar.units, blendshapes=avatar.blendshapes)
     # the posed latent of the saved networks (fast path) is what training composited
     d0 = test_data[0]
     with torch.no_grad():

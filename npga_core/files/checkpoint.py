@@ -24,6 +24,7 @@ import numpy as np
 
 from npga_core import __version__
 from npga_core.errors import AvatarFileError
+from npga_core.files import blendshapes_field
 from npga_core.files.atomic import atomic_write
 from npga_core.files.dynamics_header import (
     HeaderError,
@@ -43,7 +44,7 @@ from npga_core.model.gaussians import GaussianCloud, sh_coeff_count
 
 MAGIC = b"\x89NPGA\r\n\x1a"
 #: The newest version this code reads and writes; a file is written in the oldest version that holds it.
-FORMAT_VERSION = 2
+FORMAT_VERSION = 3
 ALIGN = 64
 MAX_HEADER_BYTES = 64 * 1024 * 1024
 MAX_PARAMETER = 1e8  # largest magnitude of a network weight, input normalisation or expression value
@@ -92,6 +93,9 @@ def expected_tensors(header: dict) -> Spec:
         spec["expression.std"] = ("float32", (c,))
         if ex.get("named"):
             spec["expression.named"] = ("float32", (len(ex["named"]), d))
+    bs = blendshapes_field.header_entry(header)
+    if bs:
+        spec.update(blendshapes_field.tensors(bs))
     return spec
 
 
@@ -100,7 +104,10 @@ def expected_tensors(header: dict) -> Spec:
 
 
 def format_version_for(avatar: Avatar) -> int:
-    """The oldest format version that holds `avatar` (1 for NPGA's F and G, 2 for any other dynamics)."""
+    """The oldest format version that holds `avatar` (1 for NPGA's F and G, 2 for any other dynamics, 3 with a
+    blendshape basis)."""
+    if avatar.blendshapes is not None:
+        return blendshapes_field.BLENDSHAPES_VERSION
     simple = (avatar.dynamics is None or avatar.dynamics.simple) and (avatar.cnn is None or avatar.cnn.config.simple)
     return 1 if simple and avatar.cloud.blend_weights is None else 2
 
@@ -156,6 +163,10 @@ def _avatar_header(avatar: Avatar, provenance: dict) -> tuple[dict, dict[str, np
         arrays["expression.std"] = ex.std
         if ex.named:
             arrays["expression.named"] = np.stack([ex.named[k] for k in ex.named])
+    if avatar.blendshapes is not None:
+        header["blendshapes"], bs_arrays = blendshapes_field.section(avatar.blendshapes, avatar.code_dim,
+                                                                            avatar.condition_dim)
+        arrays.update(bs_arrays)
     return header, arrays
 
 
@@ -284,6 +295,7 @@ def _read_header(path: Path) -> tuple[dict, int]:
     if version < 1:
         raise _Invalid(f"format version {version} is not valid")
     _check_header_schema(header)
+    _check_blendshapes(header)
     data_start = 16 + hlen
     if data_start % ALIGN:
         raise _Invalid(f"data section starts at {data_start}, not a multiple of {ALIGN}")
@@ -334,6 +346,27 @@ def _check_header_schema(header: dict) -> None:
             raise _Invalid("expression.named has duplicate names")
     if not isinstance(header.get("tensors"), dict):
         raise _Invalid("header has no 'tensors' table")
+
+
+def _check_blendshapes(header: dict) -> None:
+    entry = blendshapes_field.header_entry(header)
+    if entry is not None:
+        try:
+            blendshapes_field.check_section(entry)
+        except ValueError as e:
+            raise _Invalid(str(e)) from None
+
+
+def _blendshapes_of(header: dict, t: dict[str, np.ndarray], dynamics) -> Any:
+    entry = blendshapes_field.header_entry(header)
+    if entry is None:
+        return None
+    code_dim = 0 if dynamics is None else dynamics.code_dim
+    condition_dim = 0 if dynamics is None else dynamics.condition_dim
+    try:
+        return blendshapes_field.build(entry, t, code_dim, condition_dim, MAX_PARAMETER)
+    except ValueError as e:
+        raise _Invalid(f"blendshapes: {e}") from None
 
 
 def _map_tensors(path: Path, header: dict, data_start: int) -> dict[str, np.ndarray]:
@@ -474,7 +507,7 @@ def _build_avatar(path: Path, header: dict, t: dict[str, np.ndarray]) -> Avatar:
             raise _Invalid(f"expression space has {expression.dim} dims, the dynamics take {dynamics.code_dim}")
     prov = header.get("provenance") or {}
     return Avatar(cloud, dynamics, cnn, expression, provenance=prov, units=str(header.get("units", "m")),
-                  source=str(path))
+                  source=str(path), blendshapes=_blendshapes_of(header, t, dynamics))
 
 
 def read_avatar(path: str | Path) -> Avatar:

@@ -9,6 +9,7 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
+from npga_core.model.blendshapes import BlendshapeBasis
 from npga_core.model.cnn import ScreenCNN
 from npga_core.model.dynamics import (
     Dynamics,
@@ -36,6 +37,7 @@ class Avatar:
     provenance: dict = field(default_factory=dict)
     units: str = "m"
     source: str | None = None  # path it was loaded from, if any
+    blendshapes: BlendshapeBasis | None = None  # named blendshape weights -> expression code, if known
     version: int = field(default=0, init=False, repr=False)  # incremented by every `invalidate_caches`
     _first_layer: dict[str, torch.Tensor] = field(default_factory=dict, init=False, repr=False)
     _canonical: dict | None = field(default=None, init=False, repr=False)

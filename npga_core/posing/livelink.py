@@ -29,6 +29,7 @@ import math
 import socket
 import struct
 import threading
+from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
 
@@ -139,6 +140,7 @@ class LiveLinkReceiver:
         self._last_t: float | None = None
         self._fps = 60.0
         self._record: list[tuple[float, np.ndarray, np.ndarray]] | None = None
+        self.on_packet: Callable[[], object] | None = None  # called (on the thread) after a packet is taken
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         with contextlib.suppress(OSError):  # room for a burst while the thread is descheduled
             self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
@@ -161,7 +163,9 @@ class LiveLinkReceiver:
                 if self._stop.is_set():
                     return
                 continue
-            self.feed(data)
+            if self.feed(data) and self.on_packet is not None:
+                with contextlib.suppress(Exception):
+                    self.on_packet()
 
     def feed(self, data: bytes) -> bool:
         """Take one datagram (the thread calls this; tests and replays may too); True if it was used."""

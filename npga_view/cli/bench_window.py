@@ -66,6 +66,7 @@ class _Watcher:
     def __init__(self, app):
         self.app = app
         self.last = None
+        self.last_changed = False
 
     def step(self) -> bool:
         """One UI frame; True if the view's pixels changed."""
@@ -74,6 +75,7 @@ class _Watcher:
         fp = (zlib.crc32(img[::4, ::4].tobytes()), int(img.max()))
         changed = fp != self.last
         self.last = fp
+        self.last_changed = changed
         return changed
 
     def until(self, cond, timeout: float) -> float | None:
@@ -249,7 +251,7 @@ cloud, and off) and print a table."""
     from npga_core.files.loading import DEMO_DIR
 
     proc = _start_xvfb()
-    results = []
+    results, live = [], None
     try:
         with tempfile.TemporaryDirectory() as tmp:
             cases = []
@@ -262,12 +264,16 @@ cloud, and off) and print a table."""
                 for budget, lod in ((True, True), (True, False), (False, False)):
                     results.append(measure(avatar, seq, budget, moves, seconds, lod))
                     print(json.dumps(results[-1]), flush=True)
+            live = measure_live_link("demo", seconds=seconds) if demo else None  # #25: Live Link -> pixels
     finally:
         if proc is not None:
             proc.terminate()
     if json_path is not None:
         json_path.write_text(json.dumps(results, indent=1))
     print(table(results))
+    if live is not None:
+        print(json.dumps(live))
+        print(live_link_table(live))
     return results
 
 
@@ -290,3 +296,115 @@ def table(results: list[dict]) -> str:
                     f"{f(r.get('orbit_exact_after_s'))} | {f(r.get('live_images_per_s'), '{:.1f}')} | "
                     f"{f(r.get('baked_images_per_s'), '{:.1f}')} |")
     return "\n".join(rows)
+
+
+def measure_live_link(avatar: str = "demo", samples: int = 12, seconds: float = 6.0, rate: float = 60.0) -> dict:
+    """The Live Link Face stream into the window, on its pixels (#25): packet -> first changed pixels (median,
+    p90 over `samples` packets, each sent once the view has settled on the previous one), and a `rate`
+    packets/s stream for `seconds`: packets received, taken by the window (at most one per UI frame, the newest),
+    dropped (replaced before a UI frame took them), late and bad, distinct view images per second and UI frames
+    per second. It keeps up when the window takes every packet (nothing dropped)."""
+    import socket
+    import threading
+
+    from npga_core.files.blendshape_names import ARKIT_52
+    from npga_core.posing.livelink import encode
+    from npga_view.app import ViewerApp
+
+    app = ViewerApp(*SIZE, vsync=False, threads=2, remember_recent=False)
+    w = _Watcher(app)
+    out: dict = {"avatar": Path(avatar).name if avatar != "demo" else "demo", "rate": rate}
+    sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
+    try:
+        app.state.show_stats = False
+        app.open_avatar(avatar)
+        if app.avatar is None or app.avatar.blendshapes is None:
+            return {**out, "error": "the avatar has no blendshape basis"}
+        w.until(lambda: _exact(app), 300)
+        ref = []  # the same measure for slider moves, in the same run: the machine's load sets both
+        for k in range(max(2, samples // 2)):
+            w.until(lambda: _exact(app), 120)
+            w.step()
+            app.state.follow_sequence = False
+            app.state.sliders[0] += 1.0 if k % 2 == 0 else -1.0
+            _input_event()
+            t0 = time.perf_counter()
+            ref.append(w.until(lambda: w.last_changed, 60))
+        out["slider_changed_s"] = _stats(ref)
+        if not app.live.start("127.0.0.1:0"):
+            return {**out, "error": "; ".join(app.state.errors)}
+        addr = app.live.receiver.address
+        jaw, blink = ARKIT_52.index("jawOpen"), ARKIT_52.index("eyeBlinkLeft")
+        frame = [int(time.time() % 86400 * 60)]
+
+        def packet(a: float) -> bytes:
+            v = np.zeros(61, np.float32)
+            v[jaw], v[blink] = a, 1.0 - a
+            frame[0] += 1
+            return encode(v, frame[0], fps=60, subject="bench")
+
+        lat = []
+        for k in range(samples):
+            w.until(lambda: _exact(app), 120)
+            w.step()
+            t0 = time.perf_counter()
+            sock.sendto(packet(0.8 if k % 2 == 0 else 0.1), addr)
+            changed = None
+            while time.perf_counter() - t0 < 60:
+                if w.step():
+                    changed = time.perf_counter() - t0
+                    break
+            lat.append(changed)
+        out["packet_changed_s"] = _stats(lat)
+        w.until(lambda: _exact(app), 120)
+        c0 = dict(vars(app.live.receiver.counters))
+        taken0, frames0, images = app.live.taken, app.frames, 0
+        stop = threading.Event()
+        sent = [0]
+
+        def sender() -> None:
+            t_start = time.perf_counter()
+            while not stop.is_set():
+                due = t_start + sent[0] / rate
+                now = time.perf_counter()
+                if now < due:
+                    time.sleep(min(due - now, 0.005))
+                    continue
+                sock.sendto(packet(0.5 + 0.45 * np.sin(sent[0] / rate * 2 * np.pi)), addr)
+                sent[0] += 1
+
+        th = threading.Thread(target=sender, daemon=True)
+        t0 = time.perf_counter()
+        th.start()
+        while time.perf_counter() - t0 < seconds:
+            images += w.step()
+        stop.set()
+        th.join()
+        dt = time.perf_counter() - t0
+        for _ in range(3):
+            w.step()
+        c = vars(app.live.receiver.counters)
+        out.update({"sent": sent[0], "sent_per_s": sent[0] / dt,
+                    **{k: c[k] - c0[k] for k in ("received", "dropped", "late", "bad")},
+                    "taken": app.live.taken - taken0, "images_per_s": images / dt,
+                    "ui_fps": (app.frames - frames0) / dt})
+        out["keeps_up"] = out["dropped"] == 0 and out["received"] == out["sent"]
+        return out
+    finally:
+        sock.close()
+        app.close()
+
+
+def live_link_table(r: dict) -> str:
+    """Markdown rows of `measure_live_link`'s figures."""
+    if "error" in r:
+        return f"Live Link ({r['avatar']}): {r['error']}"
+    p = {k: ("-" if v is None else f"{v:.3f}") for k, v in r["packet_changed_s"].items()}
+    s = {k: ("-" if v is None else f"{v:.3f}") for k, v in r["slider_changed_s"].items()}
+    return "\n".join([
+        "| avatar | packet -> changed pixels s (median / p90) | slider -> changed s (median / p90) "
+        "| packets sent/s | received | taken by UI frames | dropped | late | bad | view images/s | UI fps | keeps up |",
+        "|---|---|---|---|---|---|---|---|---|---|---|---|",
+        f"| {r['avatar']} | {p['median']} / {p['p90']} | {s['median']} / {s['p90']} | {r['sent_per_s']:.1f} | "
+        f"{r['received']} | {r['taken']} | {r['dropped']} | {r['late']} | {r['bad']} | {r['images_per_s']:.1f} | "
+        f"{r['ui_fps']:.1f} | {'yes' if r['keeps_up'] else 'no'} |"])

@@ -45,7 +45,7 @@ def expression_code(args: argparse.Namespace, avatar) -> tuple[np.ndarray | None
         raise ExportError("--sequence needs --frame K to choose the expression")
     if avatar.code_dim == 0:
         raise ExportError(f"{source}: the avatar is static (no dynamics), it takes no expression codes")
-    seq = load_sequence(source)
+    seq = load_sequence(source, basis=avatar.blendshapes)
     seq.check_dim(avatar.code_dim, source)
     frame = 0 if args.frame is None else args.frame
     if not 0 <= frame < len(seq):

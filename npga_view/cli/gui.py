@@ -24,6 +24,10 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bake-budget-mb", type=float, default=1024.0, metavar="MB",
                    help="memory budget of a bake (default 1024)")
     p.add_argument("--session", metavar="FILE", help="restore a saved session file (.json)")
+    p.add_argument("--live-link", metavar="[HOST:]PORT",
+                   help="listen for a Live Link Face stream (the iPhone app, `npga-view webcam`) on PORT, on "
+                   "127.0.0.1 unless HOST is given (0.0.0.0: every interface); posed through the avatar's "
+                   "blendshape basis")
     p.add_argument("--rig", metavar="FILE", help="camera rig calibration (NeRSemble camera_params.json)")
     p.add_argument("--device", default="cpu",
                    help="where the dynamics run: cpu (default), cuda, mps or auto (a GPU when torch sees one)")
@@ -54,6 +58,14 @@ def run(args: argparse.Namespace) -> int:
     if args.bake_budget_mb <= 0:
         print("npga-view: error: --bake-budget-mb must be positive", file=sys.stderr)
         return 2
+    if args.live_link is not None:
+        from npga_view.controllers.live_link import parse_address
+
+        try:
+            parse_address(args.live_link)
+        except ValueError as e:
+            print(f"npga-view: error: --live-link: {e}", file=sys.stderr)
+            return 2
     if args.quit_after_frames is not None:
         check_files(args)
     from npga_view.cli import signals
@@ -93,6 +105,9 @@ def _open_and_run(args: argparse.Namespace, w: int, h: int, holder: dict) -> int
                 app.state.actions.append(Bake())
         if args.rig:
             app.state.actions.append(LoadRig(args.rig))
+        if args.live_link is not None and opened:
+            app.panels.timeline.live.address = args.live_link
+            app.live.start(args.live_link)
         if args.session:
             try:
                 app.load_session(args.session)

@@ -85,6 +85,10 @@ def summary(avatar: Avatar, path: str, load_s: float) -> str:
         lines.append(f"  PCA components: {ex.n_components} (std of the first: {top})")
         if ex.named:
             lines.append(f"  named expressions: {', '.join(shown(n) for n in ex.named)}")
+    bs = avatar.blendshapes
+    if bs is not None:
+        lines.append(f"  blendshapes: {len(bs.names)} -> {bs.code_dim}-D codes ({shown(bs.source)}): "
+                     + ", ".join(shown(n) for n in bs.names))
     prov = avatar.provenance
     if prov:
         keys = ("source", "path", "settings_from", "rotation_normalisation", "super_resolution", "created_at",

@@ -19,6 +19,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "import": ("npga_view.cli.importer", "convert another method's checkpoint (gha) into an .npga avatar"),
     "evaluate": ("npga_view.cli.evaluate", "render the avatar from a capture's views and score it (PSNR/SSIM/LPIPS)"),
     "fit-blendshapes": ("npga_view.cli.fit_blendshapes", "fit a blendshape basis from an ARKit take and its codes"),
+    "webcam": ("npga_view.cli.webcam", "drive a viewer's Live Link from a webcam (MediaPipe face landmarker)"),
 }
 DEFAULT = "view"
 USAGE = "npga-view [AVATAR] [viewer options] | npga-view COMMAND [options]"

@@ -171,7 +171,7 @@ def _codes(args, avatar) -> tuple[np.ndarray | None, float, list[np.ndarray] | N
         return None, 25.0, None
     if avatar.code_dim == 0:
         raise RenderError(f"{source}: the avatar is static (no dynamics), it takes no expression codes")
-    seq = load_sequence(source)
+    seq = load_sequence(source, basis=avatar.blendshapes)
     seq.check_dim(avatar.code_dim, source)
     codes, frames = seq.codes, range(len(seq))
     if args.frame is not None:

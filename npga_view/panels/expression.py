@@ -1,19 +1,21 @@
-"""Expression: sliders along the top-k PCA directions (in std), reset, random, from frame, presets."""
+"""Expression: sliders along the top-k PCA directions (in std), reset, random, from frame, presets, the pad."""
 
 from __future__ import annotations
 
 from imgui_bundle import imgui
 
 from npga_view import actions as A
+from npga_view.panels.expression_pad import ExpressionPad
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import MAX_SLIDERS, ViewerState
 
 
 class ExpressionPanel:
-    """The Expression panel; owns the name typed for a new preset."""
+    """The Expression panel; owns the name typed for a new preset and the expression pad."""
 
     def __init__(self) -> None:
         self.preset_name = "my expression"
+        self.pad = ExpressionPad()
 
     def draw(self, state: ViewerState, info: AppInfo) -> None:
         if not imgui.collapsing_header("Expression", imgui.TreeNodeFlags_.default_open):
@@ -54,3 +56,4 @@ class ExpressionPanel:
             if imgui.button("Save preset"):
                 state.actions.append(A.SavePreset(self.preset_name.strip()))
             imgui.tree_pop()
+        self.pad.draw(state, info)

@@ -52,6 +52,11 @@ class AppInfo:
     draw_progress: float = 1.0  # fraction of the image being drawn
     merged_splats: int = 0  # the image on screen was drawn from a merged level-of-detail cloud of this many (0: all)
     renderer_path: str = ""  # the splat renderer's path (SplatRenderer.path: OpenGL 4.3 or 4.1)
+    live_link: str = ""  # the Live Link receiver's status ("off", "listening on HOST:PORT", a message)
+    live_counters: str = ""  # its packet counters, for the overlay ("" when not listening)
+    live_listening: bool = False
+    live_recording: bool = False
+    live_unmatched: str = ""  # the stream's shapes the avatar's basis lacks
 
 
 def remember(info: AppInfo, name: str) -> None:

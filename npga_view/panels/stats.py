@@ -36,6 +36,8 @@ def _body(info: AppInfo) -> None:
     imgui.text(f"Gaussians: {total:,} total, {info.gaussians_drawn:,} in front of the camera")
     imgui.text(f"UI: {info.fps:5.1f} fps" + ("   posing..." if info.posing else ""))
     imgui.text(f"renderer: {info.renderer_path}")
+    if info.live_counters:
+        imgui.text(info.live_counters)
     if info.compare is not None and info.compare.overlay:  # the Compare panel's view replaces the splats
         for line in info.compare.overlay:
             imgui.text(line)

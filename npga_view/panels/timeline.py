@@ -1,5 +1,6 @@
 """Timeline: play, pause, loop, speed, scrub, step, real-time or every frame, smoothing with jitter readout,
-the tracked head pose on or off, and baked playback (bake with progress and memory budget, live or baked)."""
+the tracked head pose on or off, and baked playback (bake with progress and memory budget, live or baked); the
+Live Link stream (npga_view/panels/live_link.py)."""
 
 from __future__ import annotations
 
@@ -8,14 +9,13 @@ from imgui_bundle import imgui
 from npga_core.posing.headpose import has_head_pose, pose_description
 from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
+from npga_view.panels.live_link import LiveLinkPanel
 from npga_view.state import ViewerState
 
 SMOOTHING = ("none", "exponential", "one_euro")
 
 
 def _draw(state: ViewerState, info: AppInfo) -> None:
-    if not imgui.collapsing_header("Timeline", imgui.TreeNodeFlags_.default_open):
-        return
     seq = info.sequence
     if seq is None:
         imgui.text_disabled("No sequence loaded.")
@@ -125,7 +125,14 @@ def _bake(state: ViewerState, info: AppInfo) -> None:
 
 
 class TimelinePanel:
-    """The Timeline panel (all it shows and sets lives in `state.timeline` and `info`)."""
+    """The Timeline panel (what it shows and sets lives in `state.timeline` and `info`), with the Live Link
+    stream's controls (`LiveLinkPanel`)."""
+
+    def __init__(self) -> None:
+        self.live = LiveLinkPanel()
 
     def draw(self, state: ViewerState, info: AppInfo) -> None:
+        if not imgui.collapsing_header("Timeline", imgui.TreeNodeFlags_.default_open):
+            return
         _draw(state, info)
+        self.live.draw(state, info)

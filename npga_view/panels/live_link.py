@@ -1,0 +1,105 @@
+"""The Live Link part of the Timeline panel: listen for a Live Link Face stream (the iPhone app, `npga-view
+webcam`), its status and counters, neutral, head pose on/off and smoothing (the Timeline's), per-channel gains,
+and recording the stream to a take that reopens as a sequence. Actions go to `LiveLinkController`."""
+
+from __future__ import annotations
+
+from imgui_bundle import imgui
+
+from npga_core.files.blendshape_names import ARKIT_52
+from npga_core.posing.livelink import DEFAULT_PORT
+from npga_view import actions as A
+from npga_view.panels.info import AppInfo, remember
+from npga_view.state import ViewerState
+
+SMOOTHING = ("none", "exponential", "one_euro")
+
+
+class LiveLinkPanel:
+    """Owns the typed address, the take path and the gains shown."""
+
+    def __init__(self) -> None:
+        self.address = str(DEFAULT_PORT)
+        self.take_path = "live_take.csv"
+        self.gains = {n: 1.0 for n in ARKIT_52}
+        self.recorded: str | None = None  # the last take written, offered to reopen
+
+    def draw(self, state: ViewerState, info: AppInfo) -> None:
+        opened = imgui.tree_node_ex("Live Link", imgui.TreeNodeFlags_.default_open)
+        remember(info, "live_node")
+        if not opened:
+            return
+        imgui.set_next_item_width(150)
+        _, self.address = imgui.input_text("##live_address", self.address)
+        remember(info, "live_address")
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("[HOST:]PORT to listen on (default host 127.0.0.1; 0.0.0.0 for a phone on the LAN)")
+        imgui.same_line()
+        if imgui.button("Stop listening" if info.live_listening else "Listen"):
+            state.actions.append(A.LiveLinkStop() if info.live_listening else A.LiveLinkStart(self.address.strip()))
+        remember(info, "live_start")
+        imgui.text_disabled(info.live_link)
+        if info.live_listening:
+            imgui.text(info.live_counters)
+            if info.live_unmatched:
+                imgui.text_disabled(info.live_unmatched)
+            if imgui.button("Neutral"):
+                state.actions.append(A.LiveLinkNeutral())
+            remember(info, "live_neutral")
+            if imgui.is_item_hovered():
+                imgui.set_tooltip("Take the current weights as the rest pose")
+            imgui.same_line()
+            self._record(state, info)
+            _, state.timeline.head_pose = imgui.checkbox("Head pose##live", state.timeline.head_pose)
+            if imgui.is_item_hovered():
+                imgui.set_tooltip("Move the head by the stream's head yaw, pitch and roll (relative to the neutral)")
+            self._smoothing(state)
+            self._gains(state)
+        if self.recorded and not info.live_recording:
+            if imgui.button(f"Open {self.recorded}"):
+                state.actions.append(A.OpenSequence(self.recorded))
+            remember(info, "live_open_take")
+        imgui.tree_pop()
+
+    def _record(self, state: ViewerState, info: AppInfo) -> None:
+        if info.live_recording:
+            if imgui.button("Stop recording"):
+                state.actions.append(A.LiveLinkRecord(self.take_path.strip()))
+                self.recorded = self.take_path.strip()
+        elif imgui.button("Record"):
+            state.actions.append(A.LiveLinkRecord(None))
+        remember(info, "live_record")
+        imgui.same_line()
+        imgui.set_next_item_width(160)
+        _, self.take_path = imgui.input_text("##live_take", self.take_path)
+        remember(info, "live_take_path")
+
+    @staticmethod
+    def _smoothing(state: ViewerState) -> None:
+        tl = state.timeline
+        idx = SMOOTHING.index(tl.smoothing) if tl.smoothing in SMOOTHING else 0
+        imgui.set_next_item_width(150)
+        changed, idx = imgui.combo("Smoothing##live", idx, list(SMOOTHING))
+        if changed:
+            tl.smoothing = SMOOTHING[idx]
+        if tl.smoothing == "exponential":
+            _, tl.smooth_alpha = imgui.slider_float("Alpha##live", tl.smooth_alpha, 0.05, 1.0)
+        elif tl.smoothing == "one_euro":
+            _, tl.euro_min_cutoff = imgui.slider_float("Min cutoff (Hz)##live", tl.euro_min_cutoff, 0.05, 10.0)
+            _, tl.euro_beta = imgui.slider_float("Beta##live", tl.euro_beta, 0.0, 5.0)
+
+    def _gains(self, state: ViewerState) -> None:
+        if not imgui.tree_node("Gains"):
+            return
+        if imgui.button("All 1"):
+            for n in ARKIT_52:
+                if self.gains[n] != 1.0:
+                    self.gains[n] = 1.0
+                    state.actions.append(A.LiveLinkGain(n, 1.0))
+        for n in ARKIT_52:
+            imgui.set_next_item_width(150)
+            changed, g = imgui.slider_float(f"{n}##gain", self.gains[n], 0.0, 3.0, "%.2f")
+            if changed:
+                self.gains[n] = g
+                state.actions.append(A.LiveLinkGain(n, float(g)))
+        imgui.tree_pop()
