@@ -36,11 +36,9 @@ def _body(info: AppInfo) -> None:
     imgui.text(f"Gaussians: {total:,} total, {info.gaussians_drawn:,} in front of the camera")
     imgui.text(f"UI: {info.fps:5.1f} fps" + ("   posing..." if info.posing else ""))
     imgui.text(f"renderer: {info.renderer_path}")
-    if info.live_counters:
-        imgui.text(info.live_counters)
-    if info.compare is not None and info.compare.overlay:  # the Compare panel's view replaces the splats
-        for line in info.compare.overlay:
-            imgui.text(line)
+    extra = ([info.live_counters] if info.live_counters else []) + list(info.compare.overlay if info.compare else ())
+    for line in extra:  # the Live Link counters; the Compare panel's view (it replaces the splats) and its scores
+        imgui.text(line)
     amber = imgui.ImVec4(1.0, 0.8, 0.3, 1.0)
     if info.canonical:
         imgui.text_colored(amber, "canonical cloud (the first pose is on its way)")
