@@ -53,7 +53,7 @@ class ViewerApp:
 
     def __init__(self, width: int = 1360, height: int = 900, visible: bool = True, vsync: bool = True,
                  threads: int = 2, remember_recent: bool = True, device: str = "cpu",
-                 frame_budget_ms: float | None = 25.0, level_of_detail: bool = True):
+                 frame_budget_ms: float | None = 25.0, level_of_detail: bool = True, precision: str = "auto"):
         release_current_egl()  # a current headless context of this process would make the window's GLX fail
         if not glfw.init():
             raise RuntimeError("glfw could not initialise (no display? set DISPLAY or use Xvfb)")
@@ -105,6 +105,7 @@ class ViewerApp:
                                          self.info)
         self.threads = threads
         self.device = device  # where the worker runs the dynamics ("cpu", "cuda", "mps", "auto")
+        self.precision = precision  # the exact dynamics' number format ("fp32", "bf16", "auto")
         self.remember_recent = remember_recent
         if remember_recent:
             self.state.load_recent()
@@ -187,7 +188,7 @@ class ViewerApp:
             self.engine.close()
         a = self.avatar
         self.engine = PoseEngine(path, len(a), a.cloud.sh.shape[1], a.cloud.latent_dim, threads=self.threads,
-                                 device=self.device)
+                                 device=self.device, precision=self.precision)
         self.bakes.forget()
         self.poses.engine_restarted()
 

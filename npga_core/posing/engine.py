@@ -91,6 +91,7 @@ class EngineOptions:
     first_layer: str = "auto"  # FastPoser first-layer mode
     cache_mb: float = 256.0  # first-layer cache limit for first_layer="auto"
     kernel: str = "auto"  # FastPoser kernel: "auto", "onednn" or "aten"
+    precision: str = "auto"  # FastPoser precision: "auto", "fp32" or "bf16"
     chunk: int | None = None  # rows per chunk (None: FastPoser's default for its kernel and device)
     # the exact refinement of a preview starts after this pause without a newer request: the window's image of
     # the preview gets the cores first, and a drag's next preview usually comes within it (#14, PERFORMANCE.md)
@@ -212,13 +213,15 @@ class _Worker:
             torch.set_num_threads(1)
             device = resolve_device(options.device)
             self.poser = FastPoser(self.avatar, chunk=options.chunk, device=device, first_layer=options.first_layer,
-                                   cache_mb=options.cache_mb, threads=threads, kernel=options.kernel)
+                                   cache_mb=options.cache_mb, threads=threads, kernel=options.kernel,
+                                   precision=options.precision)
             width = self.poser.layout.width
             self.base = torch.empty(self.poser.n, width)  # exact offsets of the last exact pose
             self.scratch = torch.empty(self.poser.n, width)
             self.status["first_layer"] = self.poser.first_layer
             self.status["device"] = str(device)
             self.status["kernel"] = self.poser.kernel
+            self.status["precision"] = self.poser.precision
             self.can_preview = options.preview and device.type == "cpu" and self.avatar.code_dim > 0
         self.status["preview_model"] = "pending" if self.can_preview else "off"
 

@@ -13,9 +13,10 @@ import functools
 import platform
 from pathlib import Path
 
-import torch
-
 PRECISIONS = ("auto", "fp32", "bf16")
+#: The `--precision` option's help (viewer, render, export, bench).
+PRECISION_HELP = ("number format of the exact dynamics: fp32, bf16 (bfloat16, on CPUs with AMX or AVX-512 BF16) "
+                  "or auto (bf16 where native and close to fp32, else fp32); default %(default)s")
 
 #: The CPU flags (Linux /proc/cpuinfo names) that make bfloat16 matrix products native.
 BF16_FLAGS = ("amx_bf16", "avx512_bf16")
@@ -35,6 +36,8 @@ def cpu_flags() -> tuple[str, ...]:
     except OSError:
         pass
     if not found:  # macOS, Windows: torch's cpuinfo-based checks
+        import torch
+
         cpu = getattr(torch, "cpu", None)
         checks = {"avx2": "_is_avx2_supported", "avx512f": "_is_avx512_supported",
                   "avx512_bf16": "_is_avx512_bf16_supported", "avx512_vnni": "_is_vnni_supported",

@@ -53,7 +53,8 @@ def _body(info: AppInfo) -> None:
         imgui.text_colored(amber, line)
     es = info.engine_status
     if es.get("device"):
-        imgui.text(f"dynamics on {es['device']} ({es.get('kernel', '?')}), first layer {es.get('first_layer', '?')}")
+        imgui.text(f"dynamics on {es['device']} ({es.get('kernel', '?')}, {es.get('precision', '?')}), "
+                   f"first layer {es.get('first_layer', '?')}")
     for key, label in STAGES:
         if key in info.timings:
             imgui.text(f"{label:>12}: {info.timings[key]:8.1f} ms")
