@@ -59,6 +59,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--kernel", choices=("auto", "onednn", "aten"), default="auto",
                    help="hidden layers on oneDNN (fused bias + ReLU) or torch.mm (default auto: oneDNN if usable)")
     p.add_argument("--precision", default="auto", metavar="fp32|bf16|auto", help=PRECISION_HELP)
+    p.add_argument("--peer", type=Path, metavar="PATH",
+                   help="also draw the demo against GaussianSplattingViewer's OpenGL renderer from this checkout "
+                   "(1360x900 window, 15-frame yaw orbit, alternating; npga_view/cli/bench_peer.py)")
     p.add_argument("--no-render", action="store_true", help="skip OpenGL (no draw timings, no PSNR)")
     p.add_argument("--window", action="store_true",
                    help="measure the real window on its pixels instead (first pixels, slider, orbit, playback; "
@@ -444,6 +447,9 @@ def bench_avatar(name: str, path: str, args) -> dict:
         dest = posed_buffers(len(avatar), avatar.cloud.sh.shape[1], avatar.cloud.latent_dim)
         poser.pose_into(avatar.neutral_code(), dest)
         out.update(renderer.stages(PosedGaussians(**dest), avatar, args.repeat))
+        from npga_view.cli.bench_precision import path_ratio
+
+        out["draw_paths"] = path_ratio(renderer, PosedGaussians(**dest), repeat=args.repeat)
     from npga_core.posing.engine import EngineOptions
 
     o = EngineOptions(cache_dir=args.cache_dir)
@@ -476,6 +482,9 @@ def _print(res: dict) -> None:
     from npga_view.cli.bench_precision import print_precision
 
     print_precision(res)
+    for size, d in (res.get("draw_paths") or {}).items():
+        print(f"  draw at {size}: points {d['points_ms']:.1f} ms, quads {d['quads_ms']:.1f} ms -> quads / points "
+              f"{d['quads_over_points']:.2f} (measured choice: {d['chosen']})")
     print(f"  frame: upload {f('upload_ms', ' ms')}  sort {f('sort_ms', ' ms')}  pre-pass {f('preprocess_ms', ' ms')}"
           f"  draw {f('draw_ms', ' ms')}  CNN {f('cnn_ms', ' ms')}")
     print(f"  scrub: {f('scrub_latency_ms', ' ms')} median, {f('scrub_latency_p90_ms', ' ms')} p90 "
@@ -558,7 +567,13 @@ def run(args: argparse.Namespace) -> int:
             results.append(res)
             _print(res)
             sys.stdout.flush()
+    peer = None
+    if args.peer is not None and not args.no_render:
+        from npga_view.cli.bench_peer import run as run_peer
+
+        peer = run_peer(args.peer, 1360, 900, 15, 2, None)
     if args.json:
-        args.json.write_text(json.dumps({"machine": machine, "results": results}, indent=1, default=float))
+        args.json.write_text(json.dumps({"machine": machine, "results": results, "peer": peer}, indent=1,
+                                        default=float))
         print(f"\nwrote {args.json}")
     return 0

@@ -147,3 +147,35 @@ def print_precision(res: dict) -> None:
           f"-> {res['bf16_speedup']:.2f}x (median rounds {res['bf16_speedup_median']:.2f}x; native "
           f"{res['bf16_native']}), offsets error {res['bf16_fidelity']:.4f}{psnr}; the viewer runs "
           f"{res.get('precision', '?')}")
+
+
+def path_ratio(renderer, posed, scales: tuple[float, ...] = (1.0, 0.25), repeat: int = 3) -> dict:
+    """The colour pass drawn as GL points and as quads, alternating, at the bench camera's size and at smaller
+    scales of it: median draw ms of each and quads / points (> 1: points are faster there), and which path the
+    measured choice (`drawcost.PathCosts`) takes after these draws."""
+    from npga_view.rendering.scheduler import scaled_camera
+
+    r, out = renderer.r, {}
+    r.set_gaussians(posed)
+    saved = r.use_points
+    try:
+        for scale in scales:
+            cam = scaled_camera(renderer.camera, scale)
+            times: dict[bool, list[float]] = {True: [], False: []}
+            for _ in range(repeat):
+                for points in (True, False):
+                    r.use_points = points
+                    r.draw(cam)
+                    if bool(r.last_timings.get("points")) != points:
+                        return out  # splats too large for GL points: only quads
+                    times[points].append(r.last_timings["draw"])
+            tag = f"{cam.width}x{cam.height}"
+            pts, quads = float(np.median(times[True])), float(np.median(times[False]))
+            out[tag] = {"points_ms": pts, "quads_ms": quads, "quads_over_points": quads / pts}
+            r.use_points = None
+            for _ in range(3):
+                r.draw(cam)
+            out[tag]["chosen"] = "points" if r.last_timings.get("points") else "quads"
+    finally:
+        r.use_points = saved
+    return out
