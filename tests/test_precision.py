@@ -4,6 +4,9 @@ AMX / AVX-512 BF16 the float32 path is chosen and its output is unchanged."""
 
 from __future__ import annotations
 
+import sys
+from pathlib import Path
+
 import numpy as np
 import pytest
 import torch
@@ -14,6 +17,9 @@ from npga_core.model.gaussians import PosedGaussians
 from npga_core.model.synthetic import make_synthetic_avatar
 from npga_core.posing import fastpose, precision
 from npga_core.posing.fastpose import FastPoser, onednn_available, posed_buffers
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from test_export import read_vertices  # noqa: E402
 
 needs_bf16 = pytest.mark.skipif(not (precision.bf16_native() and onednn_available()),
                                 reason="this CPU has no native bfloat16 (AMX / AVX-512 BF16) or torch no oneDNN")
@@ -116,3 +122,51 @@ def test_bf16_100k_images_match_fp32_over_a_walk(ctx):
     codes = np.stack([avatar.expression.from_sliders(s.astype(np.float32)) for s in sliders])
     psnrs = _sequence_psnr(ctx, avatar, codes, 275, 401)
     assert min(psnrs) >= 45.0, psnrs
+
+
+def test_cli_precision_flag(tmp_path, capsys, small_npga):
+    from npga_view.cli.main import main
+
+    out = tmp_path / "a.ply"
+    assert main(["export", str(small_npga), "--out", str(out), "--precision", "fp16"]) == 2
+    assert "--precision fp16: expected fp32, bf16 or auto" in capsys.readouterr().err
+    assert not out.exists()
+    assert main(["render", str(small_npga), "--out", str(tmp_path / "a.png"), "--precision", "half"]) == 2
+    assert "--precision half" in capsys.readouterr().err
+    assert main(["view", str(small_npga), "--precision", "fp64"]) == 2  # before any window opens
+    assert "--precision fp64" in capsys.readouterr().err
+    assert main(["export", str(small_npga), "--out", str(out)]) == 0  # default fp32: `Avatar.pose`, unchanged
+    posed = load_avatar(str(small_npga)).pose()
+    np.testing.assert_array_equal(np.column_stack([read_vertices(out)[c] for c in "xyz"]), posed.means)
+    if precision.bf16_native() and onednn_available():
+        assert main(["export", str(small_npga), "--out", str(out), "--precision", "bf16"]) == 0
+        got = np.column_stack([read_vertices(out)[c] for c in "xyz"])
+        assert not np.array_equal(got, posed.means)
+        np.testing.assert_allclose(got, posed.means, atol=1e-3)
+
+
+def test_peer_bench_skips_without_a_checkout(tmp_path, capsys):
+    from npga_view.cli.bench_peer import run
+
+    assert run(tmp_path / "nothing", 64, 48, 2, 1, None) is None
+    assert "skipped: no GaussianSplattingViewer checkout" in capsys.readouterr().out
+
+
+@pytest.mark.parametrize("asked", ["fp32", "auto"])
+def test_pose_worker_reports_and_uses_its_precision(small_npga, asked):
+    from npga_core.posing.engine import EngineOptions, PoseEngine
+
+    a = load_avatar(str(small_npga))
+    expected = "bf16" if asked == "auto" and precision.bf16_native() and onednn_available() else "fp32"
+    z = a.expression.sample(np.random.default_rng(6))
+    with PoseEngine(str(small_npga), len(a), a.cloud.sh.shape[1], a.cloud.latent_dim, threads=1,
+                    options=EngineOptions(precision=asked, preview=False)) as eng:
+        eng.request(z, mode="exact")
+        r = eng.wait(timeout=120)
+        assert r is not None and eng.status.get("precision") == expected
+        got, ref = r.posed.means, a.pose(z).means
+        if expected == "fp32":
+            np.testing.assert_allclose(got, ref, rtol=1e-5, atol=1e-7)
+        else:
+            assert not np.allclose(got, ref, rtol=1e-5, atol=1e-7)
+            np.testing.assert_allclose(got, ref, atol=1e-3)

@@ -67,6 +67,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="measure the real window on its pixels instead (first pixels, slider, orbit, playback; "
                         "budgeting with and without the merged live cloud, and off; --gaussians sizes besides the "
                         "demo; Xvfb if no DISPLAY)")
+    p.add_argument("--window-precision", nargs="*", choices=("auto", "fp32", "bf16"), metavar="P",
+                   help="--window: the default drawing once per precision of the exact dynamics (e.g. fp32 bf16)")
     p.add_argument("--window-seconds", type=float, default=6.0, help="length of each window run (default 6)")
 
 
@@ -508,7 +510,7 @@ def run(args: argparse.Namespace) -> int:
 
         sizes = [n for n in args.gaussians if n != 20000] if args.gaussians == list(DEFAULT_SIZES) else args.gaussians
         run_window(sizes, demo=not args.avatars, json_path=args.json, moves=min(args.moves, 6),
-                   seconds=args.window_seconds)
+                   seconds=args.window_seconds, precisions=tuple(args.window_precision or ()) or None)
         return 0
     from npga_core.files.checkpoint import save_avatar
     from npga_core.files.loading import DEMO_AVATAR
