@@ -24,11 +24,15 @@ import torch
 from npga_core.model.networks import ConditionedMLP
 
 
-def low_inputs(encoded: torch.Tensor) -> torch.Tensor:
-    """Encoded per-Gaussian inputs (m, k) as bfloat16 [hi, lo] (m, 2k) with hi + lo close to the float32 values."""
-    hi = encoded.to(torch.bfloat16)
-    lo = (encoded - hi.float()).to(torch.bfloat16)
-    return torch.cat([hi, lo], dim=1).contiguous()
+def low_inputs(encoded: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
+    """Encoded per-Gaussian inputs (m, k) as bfloat16 [hi, lo] (m, 2k) with hi + lo close to the float32 values
+    (written into `out` when given)."""
+    m, k = encoded.shape
+    out = torch.empty(m, 2 * k, dtype=torch.bfloat16) if out is None else out
+    hi = out[:, :k]
+    hi.copy_(encoded)
+    out[:, k:].copy_(encoded - hi.float())
+    return out
 
 
 @functools.cache
