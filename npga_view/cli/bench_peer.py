@@ -85,7 +85,9 @@ class Ours:
         self.ctx.finish()
         ms = (time.perf_counter() - t0) * 1e3
         self.window.glfw.swap_buffers(self.window.handle)
-        return {"ms": ms, "points": self.r.last_timings.get("points", 0.0)}
+        t = self.r.last_timings
+        return {"ms": ms, "points": t.get("points", 0.0), "sort": t.get("sort", 0.0),
+                "preprocess": t.get("preprocess", 0.0), "draw": t.get("draw", 0.0)}
 
     def read(self, width: int, height: int) -> np.ndarray:
         self.window.current()
@@ -168,12 +170,14 @@ def run(peer: Path | None, width: int, height: int, frames: int, rounds: int, sc
         theirs = Peer(_Window(glfw, width, height, "GaussianSplattingViewer"), peer, posed, width, height)
         ours.frame(cams[0]), theirs.frame(cams[0])  # warm-up (shader compilation, first uploads)
         times: dict[str, list[float]] = {"ours": [], "peer": []}
-        points = []
+        points, parts = [], {"sort": [], "preprocess": [], "draw": []}
         for _ in range(rounds):
             for cam in cams:
                 o = ours.frame(cam)
                 times["ours"].append(o["ms"])
                 points.append(o["points"])
+                for k, v in parts.items():
+                    v.append(o[k])
                 times["peer"].append(theirs.frame(cam)["ms"])
         if screenshots is not None:
             from PIL import Image
@@ -187,10 +191,13 @@ def run(peer: Path | None, width: int, height: int, frames: int, rounds: int, sc
         res = {"cpu": cpu_name(), "size": [width, height], "frames": frames, "rounds": rounds,
                "gaussians": len(posed), "ours_ms": med["ours"], "peer_ms": med["peer"],
                "ours_ms_all": times["ours"], "peer_ms_all": times["peer"],
-               "ours_points_fraction": float(np.mean(points)), "peer_over_ours": med["peer"] / med["ours"]}
+               "ours_points_fraction": float(np.mean(points)), "peer_over_ours": med["peer"] / med["ours"],
+               **{f"ours_{k}_ms": statistics.median(v) for k, v in parts.items()}}
         print(f"{len(posed):,} Gaussians at {width}x{height}, {frames} frames x {rounds} rounds, alternating: "
               f"ours {med['ours']:.0f} ms, peer {med['peer']:.0f} ms per frame (median) -> ours "
-              f"{res['peer_over_ours']:.2f}x the peer's speed (points in {res['ours_points_fraction']:.0%} of ours)")
+              f"{res['peer_over_ours']:.2f}x the peer's speed (points in {res['ours_points_fraction']:.0%} of ours; "
+              f"ours: sort {res['ours_sort_ms']:.1f}, pre-pass {res['ours_preprocess_ms']:.1f}, splats "
+              f"{res['ours_draw_ms']:.0f} ms, the rest presenting)")
         return res
     finally:
         glfw.terminate()
