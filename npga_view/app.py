@@ -56,7 +56,7 @@ class ViewerApp:
     def __init__(self, width: int = 1360, height: int = 900, visible: bool = True, vsync: bool = True,
                  threads: int = 2, remember_recent: bool = True, device: str = "cpu",
                  frame_budget_ms: float | None = 25.0, level_of_detail: bool = True,
-                 unbudgeted: type[DrawScheduler] | None = None):
+                 unbudgeted: type[DrawScheduler] | None = None, precision: str = "auto"):
         self.window: Window | None = Window(width, height, visible, vsync, on_drop=self._on_drop)
         self.ctx = self.window.ctx
         self.renderer = create_renderer(self.ctx, 64, 64)  # the 4.3 path, or the 4.1 one (macOS)
@@ -85,6 +85,7 @@ class ViewerApp:
         self.compare = CompareController(self.ctx, str(resolve_device(device)))  # the Compare panel's views
         self.threads = threads
         self.device = device  # where the worker runs the dynamics ("cpu", "cuda", "mps", "auto")
+        self.precision = precision  # the exact dynamics' number format ("fp32", "bf16", "auto")
         self.remember_recent = remember_recent
         if remember_recent:
             self.state.load_recent()

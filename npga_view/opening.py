@@ -114,7 +114,7 @@ def start_engine(app: OpeningHost, path: str) -> None:
     a = app.avatar
     assert a is not None
     app.engine = PoseEngine(path, len(a), a.cloud.sh.shape[1], a.cloud.latent_dim, threads=app.threads,
-                            device=app.device)
+                            device=app.device, precision=app.precision)
     app.bakes.forget()
     app.poses.engine_restarted()
 

@@ -8,6 +8,11 @@ per-Gaussian columns multiply the chunk's encoded per-Gaussian inputs.
 The hidden layers of ReLU and leaky-ReLU networks run on oneDNN's linear with a fused bias + activation epilogue
 and weights packed once into its blocked layout (torch's own `mkldnn` operators, the ones torch.compile uses on the
 CPU); without them (another build, a GPU) they run on `torch.mm`.
+
+In bfloat16 (`low`, oneDNN only: AMX or AVX-512 BF16, `precision.py`) the weights and activations are bfloat16
+and oneDNN accumulates in float32. Layer 0 is then one product of the encoded per-Gaussian inputs, stored once as
+two bfloat16 halves (hi + lo, so the inputs keep about 16 bits: `low_inputs`), with the frame's bias and the
+activation fused; the output layer's bias is added in float32 while the result is copied into the offsets.
 """
 
 from __future__ import annotations
@@ -17,6 +22,17 @@ import functools
 import torch
 
 from npga_core.model.networks import ConditionedMLP
+
+
+def low_inputs(encoded: torch.Tensor, out: torch.Tensor | None = None) -> torch.Tensor:
+    """Encoded per-Gaussian inputs (m, k) as bfloat16 [hi, lo] (m, 2k) with hi + lo close to the float32 values
+    (written into `out` when given)."""
+    m, k = encoded.shape
+    out = torch.empty(m, 2 * k, dtype=torch.bfloat16) if out is None else out
+    hi = out[:, :k]
+    hi.copy_(encoded)
+    out[:, k:].copy_(encoded - hi.float())
+    return out
 
 
 @functools.cache
@@ -47,17 +63,22 @@ class Scratch:
 
     def __init__(self, chunk: int, width: int, device: torch.device):
         self.flat = [torch.empty(chunk * width, device=device) for _ in range(2)]
+        self.low = torch.empty(chunk * width, device=device, dtype=torch.bfloat16)
 
     def view(self, i: int, m: int, width: int) -> torch.Tensor:
         """Buffer i (0 or 1) as a contiguous (m, width) block."""
         return self.flat[i][: m * width].view(m, width)
+
+    def view_low(self, m: int, width: int) -> torch.Tensor:
+        """The bfloat16 buffer (layer 0's activations on the bfloat16 path) as a contiguous (m, width) block."""
+        return self.low[: m * width].view(m, width)
 
 
 class Chain:
     """One network after its per-Gaussian first-layer term; activations go through the lane's `Scratch`."""
 
     def __init__(self, net: ConditionedMLP, chunk: int, device: torch.device,
-                 packed: list[torch.Tensor | None] | None = None):
+                 packed: list[torch.Tensor | None] | None = None, low: bool = False):
         cfg = net.config
         self.net = net
         self.skips = set(cfg.skips)
@@ -81,6 +102,13 @@ class Chain:
         self.act = net._act
         self.out_act = cfg.output_activation
         self.packed = packed  # oneDNN weights of layers 1.. (None for the narrow output), or None: torch.mm
+        self.low = bool(low and packed is not None)  # bfloat16 after layer 0 (packed holds bfloat16 weights)
+        if self.low:
+            self.first_low = torch.ops.mkldnn._reorder_linear_weight(
+                torch.cat([wg, wg], dim=1).to(torch.bfloat16).contiguous(), chunk)  # for [hi, lo] inputs
+            self.biases_low = [b.to(torch.bfloat16) for b in self.biases]
+            self.last_rows_low = self.last_rows.to(torch.bfloat16)
+            self.skip_low = {i: hid.to(torch.bfloat16) for i, (hid, _, _) in self.skip_parts.items()}
         plain = self.relu and not self.skips
         self.folded = self._fold() if plain and packed is None and len(self.weights) > 2 else None
         self.flops_per_row = sum(2 * o * i for o, i in cfg.layer_shapes()[1:])
@@ -94,9 +122,9 @@ class Chain:
         return consts
 
     @staticmethod
-    def pack(net: ConditionedMLP, chunk: int) -> list[torch.Tensor | None]:
-        """oneDNN's blocked copies of the weights of layers 1.. (read-only, shared by all lanes; a skip layer's
-        hidden columns only); None for a narrow output layer, which stays a transposed `torch.mm`."""
+    def pack(net: ConditionedMLP, chunk: int, dtype: torch.dtype = torch.float32) -> list[torch.Tensor | None]:
+        """oneDNN's blocked copies of the weights of layers 1.. in `dtype` (read-only, shared by all lanes; a skip
+        layer's hidden columns only); None for a narrow output layer, which stays a transposed `torch.mm`."""
         layers = net.layers[1:]
         packed: list[torch.Tensor | None] = []
         for i, layer in enumerate(layers, start=1):
@@ -104,7 +132,8 @@ class Chain:
             if i in net.config.skips:
                 w = w[:, : net.config.hidden]
             narrow = i == len(layers) and net.config.out_dim <= 8 and i not in net.config.skips
-            packed.append(None if narrow else torch.ops.mkldnn._reorder_linear_weight(w.contiguous(), chunk))
+            w = w.to(dtype).contiguous()
+            packed.append(None if narrow else torch.ops.mkldnn._reorder_linear_weight(w, chunk))
         return packed
 
     @property
@@ -126,7 +155,7 @@ class Chain:
 
     def run(self, first_rows: torch.Tensor | None, encoded: torch.Tensor | None, code_term: torch.Tensor,
             first_bias: torch.Tensor, scratch: Scratch, dest: torch.Tensor,
-            skip_consts: dict[int, torch.Tensor] | None = None) -> None:
+            skip_consts: dict[int, torch.Tensor] | None = None, low_rows: torch.Tensor | None = None) -> None:
         """Write the outputs of m rows into `dest` (m, out), from their cached first-layer term or their
         encoded per-Gaussian inputs (`encoded`, also needed by skip layers). `code_term` is the frame's part of
         layer 0; `first_bias` is layer 0's bias plus it; `skip_consts` the skip layers' `frame_constants`.
@@ -142,13 +171,32 @@ class Chain:
         With oneDNN weights (`packed`) each hidden layer is one call that adds the bias and applies the
         activation while the block is still in registers: no folding, the same operation order as the plain
         forward. A skip layer adds its per-Gaussian and per-frame input terms before its activation.
+
+        `low_rows`: on the bfloat16 path, the chunk's `low_inputs` (layer 0 is then one fused product).
         """
+        if low_rows is not None and self.low and len(self.weights) > 1:
+            attr = self.kind if self.kind in FUSED else "none"
+            h = torch.ops.mkldnn._linear_pointwise(low_rows, self.first_low, first_bias.to(torch.bfloat16), attr,
+                                                   [self.slope] if attr == "leaky_relu" else [], "")
+            if attr == "none":
+                h = self._activate(h)
+            for i in range(1, len(self.weights)):
+                last = i == len(self.weights) - 1
+                h = self._layer_low(i, h, dest, self.packed[i - 1], encoded, skip_consts, last)  # type: ignore
+            self._output(dest)
+            return
         source = first_rows if first_rows is not None else encoded
         assert source is not None
         m = source.shape[0]
         depth = len(self.weights)
         h = scratch.view(0, m, self.widths[0]) if depth > 1 else dest
-        if first_rows is not None:
+        if self.low and depth > 1:
+            if first_rows is not None:  # rounded to bfloat16 as it is written
+                h = torch.add(first_rows, code_term, out=scratch.view_low(m, self.widths[0]))
+            else:
+                torch.addmm(first_bias, source, self.first_weight, out=h)
+                h = scratch.view_low(m, self.widths[0]).copy_(self._activate(h))
+        elif first_rows is not None:
             torch.add(first_rows, code_term, out=h)
         else:
             torch.addmm(first_bias, source, self.first_weight, out=h)
@@ -158,6 +206,10 @@ class Chain:
                 last = i == depth - 1
                 target = dest if last else scratch.view(i % 2, m, self.widths[i])
                 h = self._layer(i, h, target, encoded, skip_consts, last)
+        self._output(dest)
+
+    def _output(self, dest: torch.Tensor) -> None:
+        """The output activation, in place."""
         if self.out_act == "tanh":
             dest.tanh_()
         elif self.out_act != "none":
@@ -168,6 +220,8 @@ class Chain:
         """Layer i on activations h, activated unless it is the last layer; the result is in `target` when it is
         the last layer (else possibly a block oneDNN returned)."""
         packed = None if self.packed is None else self.packed[i - 1]
+        if self.low:
+            return self._layer_low(i, h, target, packed, encoded, skip_consts, last)
         if i in self.skips:
             hid, g, _ = self.skip_parts[i]
             assert encoded is not None and skip_consts is not None
@@ -195,6 +249,31 @@ class Chain:
                 target.copy_(out)
             return target
         return self._activate(out)
+
+    def _layer_low(self, i: int, h: torch.Tensor, target: torch.Tensor, packed: torch.Tensor | None,
+                   encoded: torch.Tensor | None, skip_consts: dict[int, torch.Tensor] | None,
+                   last: bool) -> torch.Tensor:
+        """`_layer` on bfloat16 activations h: a bfloat16 block back, or the float32 `target` for the last layer."""
+        if i in self.skips:
+            hid, g, _ = self.skip_parts[i]
+            assert encoded is not None and skip_consts is not None
+            out = torch.mm(h, self.skip_low[i]).float() if packed is None else \
+                torch.ops.mkldnn._linear_pointwise(h, packed, None, "none", [], "").float()
+            out.add_(skip_consts[i]).addmm_(encoded, g)  # per-frame and per-Gaussian terms in float32
+            if last:
+                return target.copy_(out)
+            return self._activate(out).to(torch.bfloat16)
+        if packed is None:  # a narrow output layer, transposed: (out, m) = W h^T, bias added in float32
+            res = torch.mm(self.last_rows_low, h.t())
+            return torch.add(res.t(), self.biases[-1], out=target)
+        if last:
+            out = torch.ops.mkldnn._linear_pointwise(h, packed, None, "none", [], "")
+            return torch.add(out, self.biases[i], out=target)
+        fuse = self.kind in FUSED
+        attr = self.kind if fuse else "none"
+        out = torch.ops.mkldnn._linear_pointwise(h, packed, self.biases_low[i], attr,
+                                                 [self.slope] if attr == "leaky_relu" else [], "")
+        return out if fuse else self._activate(out)
 
     def _last(self, h: torch.Tensor, target: torch.Tensor) -> torch.Tensor:
         """The output layer by torch.mm (transposed for a narrow output), its bias added into `target`."""

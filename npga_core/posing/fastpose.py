@@ -28,66 +28,27 @@ import numpy as np
 import torch
 
 from npga_core.model.avatar import Avatar
-from npga_core.model.dynamics import ATTRIBUTE_OPS, ConditionedMLP, attribute_widths, cloud_tensors, quat_multiply
-from npga_core.model.networks import PER_GAUSSIAN_INPUTS
-from npga_core.posing.chains import FUSED, Chain, Scratch, onednn_available
+from npga_core.model.dynamics import ATTRIBUTE_OPS, cloud_tensors
+from npga_core.posing.chains import FUSED, Chain, Scratch, low_inputs, onednn_available
+from npga_core.posing.poserows import (
+    OffsetLayout,
+    RowSet,
+    _attribute_major,
+    _compose,
+    _encoding_key,
+    _unit,
+    posed_buffers,
+    support_span,
+)
 from npga_core.posing.device import resolve_device
+from npga_core.posing.precision import bf16_native, check_precision
 
 #: Attributes gathered into attribute-major rows before they are applied.
 SMALL_BLOCKS = ("position", "rotation", "scale", "opacity")
 KERNELS = ("auto", "onednn", "aten")
 
-__all__ = ["KERNELS", "FastPoser", "OffsetLayout", "RowSet", "onednn_available", "posed_buffers", "resolve_device"]
-
-
-@dataclass(frozen=True)
-class OffsetLayout:
-    """Column blocks of the combined offset row: the summed offset of each attribute, in canonical order."""
-
-    blocks: dict[str, tuple[int, int]]  # "position", "sh", ... -> (first column, width)
-
-    @property
-    def width(self) -> int:
-        return sum(w for _, w in self.blocks.values())
-
-    @staticmethod
-    def of(networks: dict[str, ConditionedMLP]) -> OffsetLayout:
-        blocks, col = {}, 0
-        for name, width in attribute_widths(networks).items():
-            blocks[name] = (col, width)
-            col += width
-        return OffsetLayout(blocks)
-
-    def block(self, rows: torch.Tensor, key: str) -> torch.Tensor | None:
-        """The columns of attribute `key` ("scale") of an offset chunk, or None if absent."""
-        if key not in self.blocks:
-            return None
-        c, w = self.blocks[key]
-        return rows[:, c : c + w]
-
-
-@dataclass
-class RowSet:
-    """Per-Gaussian network inputs of a set of rows: the first-layer terms if cached, else (mu, f) to encode;
-    the blend weights of blended networks on these rows and, per network, the contiguous range of rows it
-    reaches (None: all of them)."""
-
-    means: torch.Tensor
-    features: torch.Tensor
-    first: dict[str, torch.Tensor] | None = None
-    index: np.ndarray | None = None  # the avatar rows these are (None: all, in order)
-    weights: dict[str, torch.Tensor] = field(default_factory=dict)
-    spans: dict[str, tuple[int, int]] = field(default_factory=dict)
-
-    @property
-    def n(self) -> int:
-        return int(self.means.shape[0])
-
-    def span(self, key: str, s: int, e: int) -> tuple[int, int]:
-        """The rows of s:e that network `key` reaches (an empty range when none)."""
-        a, b = self.spans.get(key, (0, self.n))
-        lo, hi = max(s, a), min(e, b)
-        return (lo, hi) if lo < hi else (s, s)
+__all__ = ["KERNELS", "FastPoser", "OffsetLayout", "RowSet", "onednn_available", "posed_buffers", "resolve_device",
+           "support_span"]
 
 
 @dataclass
@@ -100,14 +61,6 @@ class _Lane:
     scratch: Scratch
     net_out: torch.Tensor
     busy: dict[str, float] = field(default_factory=dict)  # seconds per stage in the last parallel run
-
-
-def support_span(weight: np.ndarray) -> tuple[int, int] | None:
-    """The rows where a blend weight is not zero, as a range, if they are contiguous (else None)."""
-    nz = np.flatnonzero(weight)
-    if not len(nz):
-        return (0, 0)
-    return (int(nz[0]), int(nz[-1]) + 1) if nz[-1] - nz[0] + 1 == len(nz) else None
 
 
 class FastPoser:
@@ -126,10 +79,19 @@ class FastPoser:
     `threads` lanes each take the next chunk and run it with single-threaded operations (torch's thread count
     is 1 while a pose runs): no barrier per operation, which with torch's own threads costs 10x or more as
     soon as a core is busy with something else (the renderer, another process).
+
+    `precision`: "fp32", "bf16" (layers 1.. in bfloat16 on oneDNN, see `chains`) or "auto": bfloat16 where the CPU
+    multiplies it natively (`precision.bf16_native`) and `fidelity()` stays within `BF16_TOLERANCE`, else float32.
     """
 
+    #: "auto" keeps bfloat16 when the offsets' error against float32 (RMS over a sample of rows and codes,
+    #: per attribute block, relative to the block's RMS offset) is at most this. Measured: demo 0.008, synthetic
+    #: 100k 0.014, synthetic 3k 0.027 (its 1-column opacity block); the images stay >= 45 dB (tests).
+    BF16_TOLERANCE = 0.05
+
     def __init__(self, avatar: Avatar, chunk: int | None = None, device: str | torch.device | None = None,
-                 first_layer: str = "auto", cache_mb: float = 256.0, threads: int = 1, kernel: str = "auto"):
+                 first_layer: str = "auto", cache_mb: float = 256.0, threads: int = 1, kernel: str = "auto",
+                 precision: str = "fp32"):
         dynamics = avatar.dynamics
         if dynamics is None:
             raise ValueError("the fast path needs an avatar with dynamics")
@@ -155,9 +117,8 @@ class FastPoser:
             first_layer = "cache" if need <= cache_mb else "recompute"
         if first_layer not in ("cache", "recompute"):
             raise ValueError(f"first_layer must be 'auto', 'cache' or 'recompute', got {first_layer!r}")
-        self.first_layer = first_layer
+        self.first_layer = self._first_mode = first_layer
         self.rows = RowSet(self.canonical["means"], self.canonical["features"], None, None, weights, spans)
-        self.rows.first = self._first_terms()
         self.threads = max(1, int(threads)) if self.device.type == "cpu" else 1
         if kernel not in KERNELS:
             raise ValueError(f"kernel must be one of {', '.join(KERNELS)}, got {kernel!r}")
@@ -166,16 +127,14 @@ class FastPoser:
         # rows per chunk: oneDNN measured best at 2048, torch.mm at 1024 (two blocks in a 2 MB L2); GPUs take more
         default = 65536 if self.device.type != "cpu" else 2048 if self.kernel == "onednn" else 1024
         self.chunk = int(chunk) if chunk else default
-        packs = {k: Chain.pack(n, self.chunk) if self.kernel == "onednn" and k in fused else None
-                 for k, n in self.nets.items()}
-        out_width = max(n.config.out_dim for n in self.nets.values())
-        self._lanes = []
-        for i in range(self.threads):
-            chains = {k: Chain(n, self.chunk, self.device, packs[k]) for k, n in self.nets.items()}
-            width = max(c.scratch_width for c in chains.values())
-            self._lanes.append(_Lane(i, chains, torch.empty(self.chunk, self.layout.width, device=self.device),
-                                     Scratch(self.chunk, width, self.device),
-                                     torch.empty(self.chunk * out_width, device=self.device)))
+        self._fused = fused
+        requested = check_precision(precision)
+        low_ok = self.kernel == "onednn"  # bfloat16 runs on oneDNN's packed linear only
+        if requested == "bf16" and not low_ok:
+            raise ValueError("--precision bf16: needs the oneDNN kernel on a CPU (this build or device has none)")
+        self.precision = "bf16" if requested == "bf16" or (requested == "auto" and low_ok and bf16_native()) \
+            else "fp32"
+        self._set_precision(self.precision)
         # OpenMP's thread count is per thread and a new thread starts with the default (all cores): without the
         # initializer each lane's GEMM forks its own team, lanes x cores threads on the cores (~20 % slower)
         self._pool = ThreadPoolExecutor(self.threads - 1, "fastpose", initializer=torch.set_num_threads,
@@ -184,7 +143,7 @@ class FastPoser:
         chains = self._lanes[0].chains
         share = {k: (spans[k][1] - spans[k][0]) / max(self.n, 1) if k in spans else 1.0 for k in chains}
         self.flops_per_gaussian = sum(c.flops_per_row * share[k] for k, c in chains.items())
-        if first_layer == "recompute":
+        if first_layer == "recompute" or self.precision == "bf16":
             self.flops_per_gaussian += sum(2 * c.first_weight.numel() * share[k] for k, c in chains.items())
         self._soa = _attribute_major(self.canonical)
         small = [(k, self.layout.blocks[k]) for k in SMALL_BLOCKS if k in self.layout.blocks]
@@ -197,6 +156,76 @@ class FastPoser:
         contiguous = cols == list(range(cols[0], cols[0] + len(cols))) if cols else False
         self._small_cols: slice | torch.Tensor = slice(cols[0], cols[0] + len(cols)) if contiguous else \
             torch.tensor(cols, dtype=torch.int64, device=self.device)
+        self.fidelity_error: float | None = None  # the last `fidelity()` figure (None: not measured)
+        if requested == "auto" and self.precision == "bf16" and self.fidelity() > self.BF16_TOLERANCE:
+            self._set_precision("fp32")
+
+    def _set_precision(self, precision: str) -> None:
+        """Lanes and per-Gaussian inputs for "fp32" (first-layer terms, cached or not) or "bf16" (`low_inputs`)."""
+        self.precision = precision
+        low = precision == "bf16"
+        self.first_layer = "bf16 inputs" if low else self._first_mode
+        self.rows.first = None if low else self._first_terms()
+        self.rows.low = self._low_rows(self.rows) if low else None
+        self._lanes = [self._lane(i, low) for i in range(self.threads)]
+
+    @torch.no_grad()
+    def _low_rows(self, rows: RowSet) -> dict[str, torch.Tensor]:
+        """Per network the `low_inputs` of the rows it reaches (its span, else all rows), in chunks."""
+        out = {}
+        for key, net in self.nets.items():
+            a, b = rows.spans.get(key, (0, rows.n))
+            block = torch.empty(b - a, 2 * net.split_weight(0)[0].shape[1], dtype=torch.bfloat16)
+            for s in range(a, b, 16384):
+                e = min(b, s + 16384)
+                low_inputs(net.encode_gaussian(rows.means[s:e], rows.features[s:e]), block[s - a : e - a])
+            out[key] = block
+        return out
+
+    def _lane(self, index: int, low: bool) -> _Lane:
+        """A lane's chains and buffers, in bfloat16 (`low`) or float32."""
+        dtype = torch.bfloat16 if low else torch.float32
+        chains = {k: Chain(n, self.chunk, self.device,
+                           Chain.pack(n, self.chunk, dtype) if self.kernel == "onednn" and k in self._fused else None,
+                           low)
+                  for k, n in self.nets.items()}
+        width = max(c.scratch_width for c in chains.values())
+        out_width = max(n.config.out_dim for n in self.nets.values())
+        return _Lane(index, chains, torch.empty(self.chunk, self.layout.width, device=self.device),
+                     Scratch(self.chunk, width, self.device), torch.empty(self.chunk * out_width, device=self.device))
+
+    @torch.no_grad()
+    def fidelity(self, rows: int = 2048, codes: int = 3, seed: int = 0) -> float:
+        """How far this poser's offsets are from float32's: per attribute block the RMS error over `rows` sampled
+        Gaussians at `codes` frame vectors (the neutral one and samples of the expression space), relative to the
+        block's RMS offset; the worst block and code. 0.0 for a float32 poser."""
+        if self.precision == "fp32":
+            self.fidelity_error = 0.0
+            return 0.0
+        rng = np.random.default_rng(seed)
+        index = np.unique(rng.choice(self.n, size=min(rows, self.n), replace=False)) if self.n else np.zeros(0, int)
+        sub = self.subset(index)
+        exact = self._lane(-1, False)
+        zs = [self.avatar.neutral_code()]
+        space = self.avatar.expression
+        for _ in range(codes - 1):
+            zs.append(space.sample(rng) if space is not None else rng.standard_normal(self.avatar.code_dim))
+        worst = 0.0
+        for z in zs:
+            terms = self.code_terms(np.asarray(z, np.float32))
+            got, ref = (torch.empty(sub.n, self.layout.width) for _ in range(2))
+            for s in range(0, sub.n, self.chunk):
+                e = min(sub.n, s + self.chunk)
+                self._chunk_offsets(self._lanes[0], sub, terms, s, e, into=got[s:e])
+                self._chunk_offsets(exact, sub, terms, s, e, into=ref[s:e])
+            for c, w in self.layout.blocks.values():
+                r = ref[:, c : c + w]
+                scale = float(r.square().mean().sqrt())
+                err = float((got[:, c : c + w] - r).square().mean().sqrt())
+                worst = max(worst, err / scale if scale > 0 else (0.0 if err == 0 else float("inf")))
+        self._lanes[0].busy.clear()
+        self.fidelity_error = worst
+        return worst
 
     def _blend(self, avatar: Avatar) -> tuple[dict[str, torch.Tensor], dict[str, tuple[int, int]]]:
         """Per blended network: its weights on all rows, and the range of rows it reaches when contiguous."""
@@ -223,7 +252,7 @@ class FastPoser:
 
     def _first_terms(self) -> dict[str, torch.Tensor] | None:
         """Per network the first-layer terms of the rows it reaches (its span, else all rows)."""
-        if self.first_layer != "cache":
+        if self._first_mode != "cache":
             return None
         c, rows = self.canonical, self.rows
         out = {}
@@ -281,18 +310,21 @@ class FastPoser:
                 continue
             t0 = time.perf_counter()
             chain = lane.chains[key]
-            first = enc = None
-            if rows.first is not None:
+            first = enc = low = None
+            if rows.low is not None and chain.low:
+                a = rows.spans.get(key, (0, 0))[0]
+                low = rows.low[key][lo - a : hi - a]
+            elif rows.first is not None:
                 a = rows.spans.get(key, (0, 0))[0]
                 first = rows.first[key][lo - a : hi - a]
-            if rows.first is None or net.config.skips:  # networks with the same encoding share one per chunk
+            if (rows.first is None and low is None) or net.config.skips:  # shared by equal encodings
                 ident = (self._enc_key[key], lo, hi)
                 if ident not in encoded:
                     encoded[ident] = net.encode_gaussian(rows.means[lo:hi], rows.features[lo:hi])
                 enc = encoded[ident]
             t, bias, consts = terms[key]
             dest = lane.net_out[: (hi - lo) * net.config.out_dim].view(hi - lo, net.config.out_dim)
-            chain.run(first, enc, t, bias, lane.scratch, dest, consts)
+            chain.run(first, enc, t, bias, lane.scratch, dest, consts, low)
             self._route(key, dest, rows, lo, hi, out_rows[lo - s : hi - s])
             lane.busy[key] = lane.busy.get(key, 0.0) + time.perf_counter() - t0
         return out_rows
@@ -371,7 +403,10 @@ class FastPoser:
         for k, n in self.nets.items():
             a, b = spans.get(k, (0, len(index)))
             first[k] = n.precompute(mu[a:b], f[a:b])
-        return RowSet(mu, f, first, index, weights, spans)
+        sub = RowSet(mu, f, first, index, weights, spans)
+        if self.precision == "bf16":
+            sub.low = self._low_rows(sub)
+        return sub
 
     @property
     def reach(self) -> float:
@@ -516,50 +551,3 @@ class FastPoser:
             target[:, :w].copy_(canon[:, :w] + rows[:, c : c + w])
         if w < canon.shape[1]:
             target[:, w:].copy_(canon[:, w:])
-
-
-def _encoding_key(net: ConditionedMLP) -> tuple:
-    """Networks with equal keys encode (mu, f) identically (same per-Gaussian inputs, order, encodings and
-    normalisation)."""
-    c, key, col = net.config, [], 0
-    for spec in c.specs:
-        w = c.raw_width(spec)
-        if spec.kind in PER_GAUSSIAN_INPUTS:
-            key.append((spec, tuple(net.input_shift[col : col + w].tolist()),
-                        tuple(net.input_scale[col : col + w].tolist())))
-        col += w
-    return tuple(key)
-
-
-def _unit(q: torch.Tensor) -> torch.Tensor:
-    """Rows (4, m) of quaternions, each column scaled to unit length (as `_normalize`, clamped at 1e-12)."""
-    n2 = q[0] * q[0]
-    for i in range(1, q.shape[0]):
-        n2.addcmul_(q[i], q[i])
-    return q / n2.sqrt_().clamp_min_(1e-12)
-
-
-def _compose(c_unit: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
-    """ATTRIBUTE_OPS["rotation"] on attribute-major rows: normalize(normalize(1 + d) * c_unit)."""
-    r = d.clone()
-    r[0] += 1.0
-    return _unit(quat_multiply(_unit(r).t(), c_unit.t()).t())
-
-
-def _attribute_major(canonical: dict[str, torch.Tensor | None]) -> dict[str, torch.Tensor]:
-    """Canonical attributes with the small ones transposed to (width, N), the wide ones flattened (N, width)."""
-    soa = {k: canonical[k].t().contiguous() for k in ("means", "log_scales", "quats")}
-    soa["unit_quats"] = _unit(soa["quats"].clone())
-    soa["opacity_logits"] = canonical["opacity_logits"].contiguous()
-    soa["sh"] = canonical["sh"].reshape(canonical["sh"].shape[0], canonical["sh"].shape[1] * 3)
-    if canonical.get("latent") is not None:
-        soa["latent"] = canonical["latent"]
-    return soa
-
-
-def posed_buffers(n: int, sh_coeffs: int, latent_dim: int) -> dict[str, np.ndarray]:
-    """Freshly allocated float32 output arrays for `FastPoser.pose_into`."""
-    shapes = {"means": (n, 3), "quats": (n, 4), "scales": (n, 3), "opacities": (n,), "sh": (n, sh_coeffs, 3)}
-    if latent_dim:
-        shapes["latent"] = (n, latent_dim)
-    return {k: np.empty(s, np.float32) for k, s in shapes.items()}

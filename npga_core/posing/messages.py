@@ -62,6 +62,7 @@ class EngineOptions:
     first_layer: str = "auto"  # FastPoser first-layer mode
     cache_mb: float = 256.0  # first-layer cache limit for first_layer="auto"
     kernel: str = "auto"  # FastPoser kernel: "auto", "onednn" or "aten"
+    precision: str = "fp32"  # FastPoser precision: "fp32", "bf16" or "auto" (the viewer and bench ask for auto)
     chunk: int | None = None  # rows per chunk (None: FastPoser's default for its kernel and device)
     # the exact refinement of a preview starts after this pause without a newer request: the window's image of
     # the preview gets the cores first, and a drag's next preview usually comes within it (#14, PERFORMANCE.md)

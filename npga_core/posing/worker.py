@@ -95,13 +95,15 @@ class _Worker:
             torch.set_num_threads(1)
             device = resolve_device(options.device)
             self.poser = FastPoser(self.avatar, chunk=options.chunk, device=device, first_layer=options.first_layer,
-                                   cache_mb=options.cache_mb, threads=threads, kernel=options.kernel)
+                                   cache_mb=options.cache_mb, threads=threads, kernel=options.kernel,
+                                   precision=options.precision)
             width = self.poser.layout.width
             self.base = torch.empty(self.poser.n, width)  # exact offsets of the last exact pose
             self.scratch = torch.empty(self.poser.n, width)
             self.status["first_layer"] = self.poser.first_layer
             self.status["device"] = str(device)
             self.status["kernel"] = self.poser.kernel
+            self.status["precision"] = self.poser.precision
             self.can_preview = options.preview and device.type == "cpu" and self.avatar.code_dim > 0
         self.status["preview_model"] = "pending" if self.can_preview else "off"
 

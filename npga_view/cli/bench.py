@@ -26,12 +26,14 @@ import statistics
 import sys
 import tempfile
 import time
-from concurrent.futures import ThreadPoolExecutor
 from dataclasses import replace
 from pathlib import Path
 from typing import TYPE_CHECKING
 
 import numpy as np
+
+from npga_core.posing.precision import PRECISION_HELP
+from npga_view.cli.bench_precision import gemm_gflops
 
 if TYPE_CHECKING:
     from npga_core.posing.fastpose import FastPoser
@@ -56,67 +58,21 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--bake-budget-mb", type=float, default=1024.0, help="bake memory budget (default 1024)")
     p.add_argument("--kernel", choices=("auto", "onednn", "aten"), default="auto",
                    help="hidden layers on oneDNN (fused bias + ReLU) or torch.mm (default auto: oneDNN if usable)")
+    p.add_argument("--precision", default="auto", metavar="fp32|bf16|auto", help=PRECISION_HELP)
+    p.add_argument("--peer", type=Path, metavar="PATH",
+                   help="also draw the demo against GaussianSplattingViewer's OpenGL renderer from this checkout "
+                   "(1360x900 window, 15-frame yaw orbit, alternating; npga_view/cli/bench_peer.py)")
     p.add_argument("--no-render", action="store_true", help="skip OpenGL (no draw timings, no PSNR)")
     p.add_argument("--window", action="store_true",
                    help="measure the real window on its pixels instead (first pixels, slider, orbit, playback; "
                         "budgeting with and without the merged live cloud, and off; --gaussians sizes besides the "
                         "demo; Xvfb if no DISPLAY)")
+    p.add_argument("--window-precision", nargs="*", choices=("auto", "fp32", "bf16"), metavar="P",
+                   help="--window: the default drawing once per precision of the exact dynamics (e.g. fp32 bf16)")
     p.add_argument("--window-seconds", type=float, default=6.0, help="length of each window run (default 6)")
 
 
 # -- small measuring helpers -------------------------------------------------------------------------------
-def gemm_gflops(threads: int, n: int = 2048, repeat: int = 5, device: str = "cpu") -> float:
-    """This machine's fp32 matrix-multiply rate (GFLOPS) on `threads` cores: the better of one n^3 product
-    with `threads` intra-op threads and `threads` concurrent single-threaded n^3 products (best of `repeat`).
-    On a GPU `device`, the rate of one n^3 product there."""
-    import torch
-
-    if device != "cpu":
-        return _gpu_gemm_gflops(torch.device(device), 4 * n, repeat)
-
-    saved = torch.get_num_threads()
-    mats = [(torch.randn(n, n), torch.randn(n, n), torch.empty(n, n)) for _ in range(threads)]
-
-    def one(i: int) -> None:
-        a, b, c = mats[i]
-        torch.mm(a, b, out=c)
-
-    def best(fn) -> float:
-        fn()
-        t = float("inf")
-        for _ in range(repeat):
-            t0 = time.perf_counter()
-            fn()
-            t = min(t, time.perf_counter() - t0)
-        return t
-
-    try:
-        torch.set_num_threads(threads)
-        intra = 2.0 * n**3 / best(lambda: one(0))
-        torch.set_num_threads(1)
-        with ThreadPoolExecutor(threads, initializer=torch.set_num_threads, initargs=(1,)) as pool:
-            inter = threads * 2.0 * n**3 / best(lambda: list(pool.map(one, range(threads))))
-    finally:
-        torch.set_num_threads(saved)
-    return max(intra, inter) / 1e9
-
-
-def _gpu_gemm_gflops(device, n: int, repeat: int) -> float:
-    import torch
-
-    a, b = torch.randn(n, n, device=device), torch.randn(n, n, device=device)
-    sync = torch.cuda.synchronize if device.type == "cuda" else torch.mps.synchronize
-    torch.mm(a, b)
-    sync()
-    best = float("inf")
-    for _ in range(repeat):
-        t0 = time.perf_counter()
-        torch.mm(a, b)
-        sync()
-        best = min(best, time.perf_counter() - t0)
-    return 2.0 * n**3 / best / 1e9
-
-
 def psnr(a: np.ndarray, b: np.ndarray) -> float:
     """PSNR (dB) of two images in [0, 1] (clipped)."""
     mse = float(np.mean((np.clip(a, 0, 1) - np.clip(b, 0, 1)) ** 2))
@@ -185,7 +141,7 @@ def _exact_in_process(avatar, args, out: dict) -> FastPoser:
 
     from npga_core.posing.fastpose import FastPoser, posed_buffers
 
-    poser = FastPoser(avatar, device=args.device, threads=args.threads, kernel=args.kernel)
+    poser = FastPoser(avatar, device=args.device, threads=args.threads, kernel=args.kernel, precision=args.precision)
     gemm_device = str(poser.device.type)
     dest = posed_buffers(len(avatar), avatar.cloud.sh.shape[1], avatar.cloud.latent_dim)
     z = avatar.expression.sample(np.random.default_rng(0)) if avatar.expression else avatar.neutral_code()
@@ -211,6 +167,7 @@ def _exact_in_process(avatar, args, out: dict) -> FastPoser:
     # per round: dynamics rate over the better of the gemm rates measured right before and after it
     paired = [flop / (r["offsets"] / 1e3) / 1e9 / max(gemms[i], gemms[i + 1]) for i, r in enumerate(runs)]
     out["first_layer"], out["kernel"], out["chunk"] = poser.first_layer, poser.kernel, poser.chunk
+    out["precision"] = poser.precision
     out["F_ms"], out["G_ms"], out["apply_ms"], out["exact_pose_ms"] = med["F"], med["G"], med["apply"], med["pose"]
     out["dynamics_ms"], out["dynamics_median_ms"] = best, med["offsets"]
     out["mflop_per_gaussian"] = poser.flops_per_gaussian / 1e6
@@ -300,7 +257,7 @@ def _engine_run(path: str, avatar, codes: np.ndarray, fps: float, renderer: _Ren
     """The viewer's path: scrub latency, refine, live and baked playback, memory."""
     from npga_core.posing.engine import EngineOptions, PoseEngine
 
-    opts = EngineOptions(device=args.device, cache_dir=args.cache_dir, kernel=args.kernel)
+    opts = EngineOptions(device=args.device, cache_dir=args.cache_dir, kernel=args.kernel, precision=args.precision)
     ex = avatar.expression
     n = len(avatar)
     with PoseEngine(path, n, avatar.cloud.sh.shape[1], avatar.cloud.latent_dim, args.threads, opts) as eng:
@@ -482,6 +439,9 @@ def bench_avatar(name: str, path: str, args) -> dict:
     codes, _ = _sequence(avatar, args.bake_frames)
     renderer = None if args.no_render else _Renderer(avatar.cloud.means)
     poser = _exact_in_process(avatar, args, out)
+    from npga_view.cli.bench_precision import precision_ratio
+
+    out.update(precision_ratio(avatar, args, renderer, codes))
     if renderer is not None:
         from npga_core.model.gaussians import PosedGaussians
         from npga_core.posing.fastpose import posed_buffers
@@ -489,6 +449,9 @@ def bench_avatar(name: str, path: str, args) -> dict:
         dest = posed_buffers(len(avatar), avatar.cloud.sh.shape[1], avatar.cloud.latent_dim)
         poser.pose_into(avatar.neutral_code(), dest)
         out.update(renderer.stages(PosedGaussians(**dest), avatar, args.repeat))
+        from npga_view.cli.bench_precision import path_ratio
+
+        out["draw_paths"] = path_ratio(renderer, PosedGaussians(**dest), repeat=args.repeat)
     from npga_core.posing.engine import EngineOptions
 
     o = EngineOptions(cache_dir=args.cache_dir)
@@ -518,6 +481,12 @@ def _print(res: dict) -> None:
           f"{f('roofline_ratio', '', '{:.2f}')} "
           f"of gemm (median round {f('roofline_ratio_median', '', '{:.2f}')})  "
           f"(Avatar.pose {f('avatar_pose_ms', ' ms')})")
+    from npga_view.cli.bench_precision import print_precision
+
+    print_precision(res)
+    for size, d in (res.get("draw_paths") or {}).items():
+        print(f"  draw at {size}: points {d['points_ms']:.1f} ms, quads {d['quads_ms']:.1f} ms -> quads / points "
+              f"{d['quads_over_points']:.2f} (measured choice: {d['chosen']})")
     print(f"  frame: upload {f('upload_ms', ' ms')}  sort {f('sort_ms', ' ms')}  pre-pass {f('preprocess_ms', ' ms')}"
           f"  draw {f('draw_ms', ' ms')}  CNN {f('cnn_ms', ' ms')}")
     print(f"  scrub: {f('scrub_latency_ms', ' ms')} median, {f('scrub_latency_p90_ms', ' ms')} p90 "
@@ -535,30 +504,18 @@ def _print(res: dict) -> None:
           f"(worker with the bake: {f('worker_peak_rss_with_bake_mb', ' MB', '{:.0f}')})")
 
 
-def _cpu_name() -> str:
-    """CPU model and its matrix extensions (from /proc/cpuinfo where there is one)."""
-    try:
-        info = Path("/proc/cpuinfo").read_text()
-    except OSError:
-        return platform.processor() or platform.machine()
-    name = next((ln.split(":", 1)[1].strip() for ln in info.splitlines() if ln.startswith("model name")), "")
-    flags = next((ln.split(":", 1)[1].split() for ln in info.splitlines() if ln.startswith("flags")), [])
-    ext = [f for f in ("avx2", "avx512f", "avx512_bf16", "amx_bf16") if f in flags]
-    return f"{name or platform.machine()} ({', '.join(ext)})"
-
-
 def run(args: argparse.Namespace) -> int:
     if args.window:
         from npga_view.cli.bench_window import run as run_window
 
         sizes = [n for n in args.gaussians if n != 20000] if args.gaussians == list(DEFAULT_SIZES) else args.gaussians
         run_window(sizes, demo=not args.avatars, json_path=args.json, moves=min(args.moves, 6),
-                   seconds=args.window_seconds)
+                   seconds=args.window_seconds, precisions=tuple(args.window_precision or ()) or None)
         return 0
     from npga_core.files.checkpoint import save_avatar
     from npga_core.files.loading import DEMO_AVATAR
     from npga_core.model.synthetic import make_synthetic_avatar
-    from npga_core.posing.fastpose import resolve_device
+    from npga_core.posing.device import resolve_device
 
     try:
         args.device = str(resolve_device(args.device))
@@ -569,8 +526,16 @@ def run(args: argparse.Namespace) -> int:
     targets = [(f"{Path(p).parent.name}/{Path(p).name}", str(p)) for p in args.avatars]
     if not targets and DEMO_AVATAR.is_file():
         targets.append(("demo", str(DEMO_AVATAR)))
-    machine = {"python": platform.python_version(), "cpu": _cpu_name(), "cores": os.cpu_count(),
-               "threads": args.threads, "device": args.device}
+    from npga_core.posing.precision import check_precision, cpu_flags
+    from npga_view.cli.bench_precision import cpu_name, mm_ratio
+
+    try:
+        args.precision = check_precision(args.precision)
+    except ValueError as e:
+        print(f"npga-view bench: error: {e}", file=sys.stderr)
+        return 2
+    machine = {"python": platform.python_version(), "cpu": cpu_name(), "cpu_flags": list(cpu_flags()),
+               "cores": os.cpu_count(), "threads": args.threads, "device": args.device, **mm_ratio()}
     try:
         import torch
 
@@ -578,6 +543,8 @@ def run(args: argparse.Namespace) -> int:
     except ImportError:
         pass
     print(f"npga-view bench: {machine}")
+    print(f"torch.mm 80k x 256 x 256: fp32 {machine['mm_fp32_gflops']:.0f} GFLOPS, bf16 "
+          f"{machine['mm_bf16_gflops']:.0f} GFLOPS -> bf16 {machine['mm_bf16_speedup']:.2f}x")
     if not args.no_render:
         from npga_view.rendering.gl import GLUnavailableError, create_headless_context
 
@@ -602,7 +569,13 @@ def run(args: argparse.Namespace) -> int:
             results.append(res)
             _print(res)
             sys.stdout.flush()
+    peer = None
+    if args.peer is not None and not args.no_render:
+        from npga_view.cli.bench_peer import run as run_peer
+
+        peer = run_peer(args.peer, 1360, 900, 15, 2, None)
     if args.json:
-        args.json.write_text(json.dumps({"machine": machine, "results": results}, indent=1, default=float))
+        args.json.write_text(json.dumps({"machine": machine, "results": results, "peer": peer}, indent=1,
+                                        default=float))
         print(f"\nwrote {args.json}")
     return 0

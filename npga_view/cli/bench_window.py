@@ -148,15 +148,17 @@ class UnbudgetedScheduler(DrawScheduler):
 
 
 def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, seconds: float = 6.0,
-            lod: bool = True) -> dict:
+            lod: bool = True, precision: str = "auto") -> dict:
     """All figures for one avatar with budgeting on or off, live images from the merged cloud (`lod`) or not."""
     from npga_view.app import ViewerApp
 
     t_open = time.perf_counter()
     app = ViewerApp(*SIZE, vsync=False, threads=2, remember_recent=False,
-                    frame_budget_ms=25.0 if budget else None, level_of_detail=lod, unbudgeted=UnbudgetedScheduler)
+                    frame_budget_ms=25.0 if budget else None, level_of_detail=lod, unbudgeted=UnbudgetedScheduler,
+                    precision=precision)
     w = _Watcher(app)
-    out: dict = {"avatar": Path(avatar).name if avatar != "demo" else "demo", "budget": budget, "lod": budget and lod}
+    out: dict = {"avatar": Path(avatar).name if avatar != "demo" else "demo", "budget": budget, "lod": budget and lod,
+                 "precision": precision}
     try:
         app.state.show_stats = False  # the overlay's figures change every frame: only the splats are watched
         app.open_avatar(avatar)
@@ -245,9 +247,11 @@ def _synthetic(n: int, folder: Path) -> tuple[str, str]:
     return str(path), str(seq)
 
 
-def run(gaussians: list[int], demo: bool, json_path: Path | None, moves: int = 6, seconds: float = 6.0) -> list[dict]:
+def run(gaussians: list[int], demo: bool, json_path: Path | None, moves: int = 6, seconds: float = 6.0,
+        precisions: tuple[str, ...] | None = None) -> list[dict]:
     """Measure the demo and synthetic avatars of the given sizes (budgeting on with and without the merged live
-cloud, and off) and print a table."""
+cloud, and off) and print a table. With `precisions` (e.g. fp32 bf16): the default drawing only, once per
+precision of the exact dynamics, alternating in the same run."""
     from npga_core.files.loading import DEMO_DIR
 
     proc = _start_xvfb()
@@ -261,8 +265,10 @@ cloud, and off) and print a table."""
             cases += [_synthetic(n, Path(tmp)) for n in gaussians]
             for avatar, seq in cases:
                 print(f"warm-up {avatar}: preview model {warm_up(avatar)}", flush=True)
-                for budget, lod in ((True, True), (True, False), (False, False)):
-                    results.append(measure(avatar, seq, budget, moves, seconds, lod))
+                modes = [(True, True, p) for p in precisions] if precisions else \
+                    [(True, True, "auto"), (True, False, "auto"), (False, False, "auto")]
+                for budget, lod, precision in modes:
+                    results.append(measure(avatar, seq, budget, moves, seconds, lod, precision))
                     print(json.dumps(results[-1]), flush=True)
             live = measure_live_link("demo", seconds=seconds) if demo else None  # #25: Live Link -> pixels
     finally:
@@ -282,15 +288,15 @@ def table(results: list[dict]) -> str:
     def f(v, fmt="{:.2f}"):
         return "-" if v is None else fmt.format(v)
 
-    rows = ["| avatar | drawing | first pixels s | slider -> changed s (med / p90) | slider -> exact s (med) "
-            "| slider -> CNN image s (med) | orbit images/s | orbit UI fps | orbit -> exact s | live images/s "
-            "| baked images/s |",
-            "|---|---|---|---|---|---|---|---|---|---|---|"]
+    rows = ["| avatar | drawing | precision | first pixels s | slider -> changed s (med / p90) "
+            "| slider -> exact s (med) | slider -> CNN image s (med) | orbit images/s | orbit UI fps "
+            "| orbit -> exact s | live images/s | baked images/s |",
+            "|---|---|---|---|---|---|---|---|---|---|---|---|"]
     for r in results:
         sc, se = r.get("slider_changed_s", {}), r.get("slider_exact_s", {})
         sr = r.get("slider_refined_s", {})
         drawing = ("budget + LOD" if r.get("lod") else "budget") if r["budget"] else "off"
-        rows.append(f"| {r['avatar']} | {drawing} | {f(r.get('first_pixels_s'))} | "
+        rows.append(f"| {r['avatar']} | {drawing} | {r.get('precision', 'auto')} | {f(r.get('first_pixels_s'))} | "
                     f"{f(sc.get('median'))} / {f(sc.get('p90'))} | {f(se.get('median'))} | {f(sr.get('median'))} | "
                     f"{f(r.get('orbit_images_per_s'), '{:.1f}')} | {f(r.get('orbit_ui_fps'), '{:.1f}')} | "
                     f"{f(r.get('orbit_exact_after_s'))} | {f(r.get('live_images_per_s'), '{:.1f}')} | "

@@ -8,6 +8,8 @@ from pathlib import Path
 
 import numpy as np
 
+from npga_core.posing.precision import PRECISION_HELP
+
 
 class ExportError(Exception):
     """A problem with the arguments of `export`, reported as one line with exit code 2."""
@@ -24,6 +26,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--head-pose", choices=("off", "relative", "absolute"), default="off",
                    help="move the Gaussians by the --sequence frame's tracked head pose, relative to its first "
                    "frame or as tracked (into the tracking's world); SH turn with the head. Default off")
+    p.add_argument("--precision", default="fp32", metavar="fp32|bf16|auto", help=PRECISION_HELP)
 
 
 def expression_code(args: argparse.Namespace, avatar) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -67,12 +70,17 @@ def run(args: argparse.Namespace) -> int:
             raise ExportError(f"--out {out}: the output must be a .ply file")
         if not out.parent.is_dir():
             raise ExportError(f"--out {out}: folder {out.parent} does not exist")
+        from npga_core.posing.precision import check_precision
+
+        precision = check_precision(getattr(args, "precision", "fp32"))
         avatar = load_avatar(args.avatar)
         code, transform = expression_code(args, avatar)
     except (ExportError, ValueError) as e:
         print(f"npga-view export: error: {' '.join(str(e).split())}", file=sys.stderr)
         return 2
-    posed = avatar.pose(code)
+    from npga_core.posing.oneshot import ExactPoses
+
+    posed = ExactPoses(avatar, precision).pose(code)
     if transform is not None:
         from npga_core.posing.headpose import transform_posed
 

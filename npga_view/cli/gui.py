@@ -10,6 +10,7 @@ import argparse
 import sys
 
 from npga_core.errors import AvatarFileError
+from npga_core.posing.precision import PRECISION_HELP
 from npga_view.actions import Bake, LoadRig
 
 
@@ -31,6 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--rig", metavar="FILE", help="camera rig calibration (NeRSemble camera_params.json)")
     p.add_argument("--device", default="cpu",
                    help="where the dynamics run: cpu (default), cuda, mps or auto (a GPU when torch sees one)")
+    p.add_argument("--precision", default="auto", metavar="fp32|bf16|auto", help=PRECISION_HELP)
     p.add_argument("--threads", type=int, default=2, metavar="N", help="torch threads of the dynamics worker")
     p.add_argument("--size", default="1360x900", metavar="WxH", help="window size (default 1360x900)")
     p.add_argument("--screenshot", metavar="PNG",
@@ -50,8 +52,10 @@ def run(args: argparse.Namespace) -> int:
         args.quit_after_frames = 3
     try:
         from npga_core.posing.device import resolve_device
+        from npga_core.posing.precision import check_precision
 
         resolve_device(args.device)
+        args.precision = check_precision(getattr(args, "precision", "auto"))
     except ValueError as e:
         print(f"npga-view: error: {e}", file=sys.stderr)
         return 2
@@ -90,7 +94,7 @@ def _open_and_run(args: argparse.Namespace, w: int, h: int, holder: dict) -> int
     from npga_view.app import ViewerApp
 
     try:
-        app = ViewerApp(w, h, threads=args.threads, device=args.device)
+        app = ViewerApp(w, h, threads=args.threads, device=args.device, precision=args.precision)
     except RuntimeError as e:
         print(f"npga-view: error: {e}", file=sys.stderr)
         return 2

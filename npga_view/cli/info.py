@@ -107,4 +107,19 @@ def run(args: argparse.Namespace) -> int:
     from npga_view.rendering.factory import headless_path_line
 
     print(headless_path_line())
+    print(precision_line(avatar))
     return 0
+
+
+def precision_line(avatar: Avatar) -> str:
+    """Which number format the exact dynamics take here with `--precision auto`, and why."""
+    from npga_core.posing.precision import describe
+
+    if avatar.dynamics is None or len(avatar) == 0:
+        return f"exact dynamics: none ({describe()})"
+    from npga_core.posing.fastpose import FastPoser
+
+    poser = FastPoser(avatar, threads=1, precision="auto")
+    err = "" if poser.fidelity_error is None else \
+        f", bf16 error {poser.fidelity_error:.3f} (limit {FastPoser.BF16_TOLERANCE})"
+    return f"exact dynamics: {poser.precision} with --precision auto ({describe()}{err})"

@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING
 import numpy as np
 
 from npga_core.camera.cameras import DEFAULT_HEIGHT, DEFAULT_WIDTH, Camera, frame_points
+from npga_core.posing.precision import PRECISION_HELP
 
 if TYPE_CHECKING:
     from npga_core.inspection.inspector import InspectSettings
@@ -81,6 +82,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="move the head as the --sequence's tracked pose: relative to its first frame (for the "
                    "default framing) or as tracked (for a rig --camera); default off")
     p.add_argument("--no-cnn", action="store_true", help="skip the avatar's screen-space CNN refinement")
+    p.add_argument("--precision", default="fp32", metavar="fp32|bf16|auto", help=PRECISION_HELP)
     p.add_argument("--timeline", type=Path, help="keyframe timeline JSON (expression and camera keys) to render as "
                    "a video (.mp4)")
     p.add_argument("--verbose", action="store_true", help="print which renderer path and OpenGL version run")
@@ -318,8 +320,10 @@ class _Frames:
 
     def __init__(self, avatar, renderer, camera: Camera, args, background) -> None:
         from npga_core.inspection.inspector import Inspector
+        from npga_core.posing.oneshot import ExactPoses
 
         self.avatar, self.renderer, self.camera = avatar, renderer, camera
+        self.poses = ExactPoses(avatar, getattr(args, "precision", "fp32"))
         self.source = args.timeline or args.sequence or args.expr or args.avatar  # named when a pose overflows
         self.mode, self.background, self.legend = args.mode, background, not args.no_legend
         self.raw_npy = str(args.out).lower().endswith(".npy")
@@ -339,7 +343,7 @@ class _Frames:
         from npga_core.files.untrusted import finite_output
 
         r, cam = self.renderer, self.camera
-        posed = self.avatar.pose(code)
+        posed = self.poses.pose(code)
         finite_output({k: getattr(posed, k) for k in ("means", "quats", "scales", "opacities", "sh")},
                       self.source, "the posed Gaussians")
         if self.inspecting:
@@ -475,6 +479,9 @@ def _render(args) -> int:
     out: Path = args.out
     suffix = _check_output(args)
     background = parse_background(args.background)
+    from npga_core.posing.precision import check_precision
+
+    check_precision(getattr(args, "precision", "fp32"))
     avatar = load_avatar(args.avatar)
     codes, fps, poses = _codes(args, avatar)
     camera = _camera(args, avatar.cloud.means)
@@ -489,6 +496,8 @@ def _render(args) -> int:
     if getattr(args, "verbose", False):
         print(f"renderer: {describe(renderer)}", file=sys.stderr)
     frames = _Frames(avatar, renderer, camera if cameras is None else cameras[0], args, background)
+    if getattr(args, "verbose", False) and avatar.dynamics is not None:
+        print(f"exact dynamics: {frames.poses.precision}", file=sys.stderr)
     if len(avatar.cloud) == 0:
         print(f"note: {shown(args.avatar)} has no Gaussians; the image is empty")
     if suffix != ".mp4":

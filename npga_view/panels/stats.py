@@ -62,7 +62,8 @@ def _body(info: AppInfo) -> None:
         imgui.text_colored(amber, line)
     es = info.engine_status
     if es.get("device"):
-        imgui.text(f"dynamics on {es['device']} ({es.get('kernel', '?')}), first layer {es.get('first_layer', '?')}")
+        imgui.text(f"dynamics on {es['device']} ({es.get('kernel', '?')}, {es.get('precision', '?')}), "
+                   f"first layer {es.get('first_layer', '?')}")
     if info.avatar is not None and info.avatar.cnn is not None and info.cnn_device:
         imgui.text(f"CNN on {info.cnn_device}")
     for key, label in STAGES:

@@ -1,5 +1,5 @@
-"""The passes of `SplatRenderer` besides the colour image: latent features (for the screen-space CNN) and
-Gaussian ids (picking), and what the last pre-pass kept.
+"""The passes of `SplatRenderer` besides the colour image: latent features (for the screen-space CNN), Gaussian ids
+(picking), what the last pre-pass kept, and the inspection frame with its line overlay.
 
 A mixin: `SplatRenderer` inherits these; they use its buffers (`splats`, `order`, `latent`), its pre-pass
 (`_prepare`, which drops an unfinished sliced image when the camera differs) and its programs.
@@ -10,11 +10,16 @@ from __future__ import annotations
 import math
 import time
 from dataclasses import dataclass
+from typing import TYPE_CHECKING
 
 import moderngl
 import numpy as np
 
 from npga_core.camera.cameras import Camera
+from npga_view.rendering.lines import LinePass
+
+if TYPE_CHECKING:
+    from npga_core.inspection.inspector import InspectFrame
 
 PICK_THRESHOLD = 0.2  # alpha a Gaussian must reach at a pixel to be picked there
 
@@ -207,3 +212,27 @@ class AuxiliaryPasses:
         value = int(np.frombuffer(data, np.uint32)[0])
         return value - 1 if value else None
 
+    def show(self, frame: InspectFrame) -> None:
+        """Upload an inspection frame (`Inspector.frame` in npga_core.inspection): Gaussians, style and lines."""
+        self.set_gaussians(frame.posed)
+        self.style, self.point_px = frame.style, frame.point_px
+        if frame.lines is None:
+            self.clear_lines()
+        else:
+            self.set_lines(frame.lines.positions, frame.lines.edges, frame.lines.colours)
+
+    def set_lines(self, positions: np.ndarray, edges: np.ndarray, colours: np.ndarray) -> None:
+        """Segments between rows of `positions` (M, 3), edges (E, 2), colours (E, 3|4), drawn over the splats by
+        `draw` in "rgb" mode until `clear_lines`."""
+        self._activate()
+        if self._lines is None:
+            self._lines = LinePass(self.ctx, self._load_shader)
+        self._lines.set(positions, edges, colours)
+
+    def clear_lines(self) -> None:
+        if self._lines is not None:
+            self._lines.clear()
+
+    @property
+    def line_count(self) -> int:
+        return 0 if self._lines is None else self._lines.edge_count

@@ -12,9 +12,9 @@ Pipeline per frame (see shaders/):
    t.x/t.z, t.y/t.z clamped to 1.3 tan(fov/2), +0.3 px on the covariance diagonal), SH colour as
    `computeColorFromSH`, and a quad along the covariance eigenvectors reaching the radius where
    alpha = 1/255 (at most 3.33 sigma; fragments beyond it are discarded by the 3DGS rule anyway).
-3. draw: one instanced quad per Gaussian in sorted order (or, when every splat's bounding square fits the
-   GL's point sizes, one GL point per Gaussian: the same fragments from a quarter of the vertex work, which is
-   what bounds llvmpipe); the fragment shader evaluates
+3. draw: one instanced quad per Gaussian in sorted order, or, when every splat's bounding square fits the
+   GL's point sizes, one GL point per Gaussian: a quarter of the vertex work but the whole square's fragments;
+   which is cheaper for an image size is measured (`drawcost.PathCosts`); the fragment shader evaluates
    alpha = min(0.99, o exp(-d^T S^-1 d / 2)) at d = gl_FragCoord - centre with the 2D conic, exactly as
    renderCUDA, discards it below 1/255, and blends premultiplied "over" into an RGBA32F target.
 
@@ -57,7 +57,6 @@ import re
 import time
 from dataclasses import dataclass
 from pathlib import Path
-from typing import TYPE_CHECKING
 
 import moderngl
 import numpy as np
@@ -65,11 +64,9 @@ import numpy as np
 from npga_core.camera.cameras import Camera
 from npga_core.model.gaussians import PosedGaussians, sh_degree_from_count
 from npga_view.rendering.aux_passes import AuxiliaryPasses
+from npga_view.rendering.drawcost import PathCosts
 from npga_view.rendering.lines import LinePass
 from npga_view.rendering.sorting import sort_back_to_front, view_depths
-
-if TYPE_CHECKING:
-    from npga_core.inspection.inspector import InspectFrame
 
 #: The GLSL sources: the repository's shaders/, installed as the package data `npga_view.shaders`.
 SHADER_DIR = Path(str(importlib.resources.files("npga_view.shaders")))
@@ -100,10 +97,12 @@ class DrawJob:
     height: int
     mode: str
     points: bool  # colour pass as GL points (every splat fits the point size range)
+    fits: bool  # points were possible (so the image's cost says something about the choice)
     total: int  # sorted positions to draw
     next: int = 0  # next sorted position
     slices: int = 0
     draw_ms: float = 0.0
+    synced: bool = True  # every slice was finished before it was timed
 
 
 def camera_key(camera: Camera) -> tuple:
@@ -145,7 +144,10 @@ class SplatRenderer(AuxiliaryPasses):
         self._points_vao = ctx.vertex_array(self._points_prog, [])
         #: largest GL point size; splats of up to this size may be drawn as points (`use_points`)
         self.max_point = float(ctx.info["GL_POINT_SIZE_RANGE"][1])
-        self.use_points = True
+        #: None: points or quads by their measured cost at the image's size (`path_costs`); True: points when every
+        #: splat fits; False: quads
+        self.use_points: bool | None = None
+        self.path_costs = PathCosts()
         self._oversize = 0
         self._job: DrawJob | None = None
         self._job_camera: Camera | None = None
@@ -425,9 +427,10 @@ class SplatRenderer(AuxiliaryPasses):
             self._prepare(camera, flip_y)
         if framebuffer is None:
             self._resize(camera.width, camera.height)
-        points = self.use_points and self.style == "splats" and self._oversize == 0
+        fits = self.style == "splats" and self._oversize == 0 and self.use_points is not False
+        points = fits and (self.use_points or self.path_costs.choose(camera.width, camera.height))
         self._job = DrawJob((*camera_key(camera), mode, flip_y), camera.width, camera.height, mode, points,
-                            self._visible if self._count else 0)
+                            fits and self.use_points is None, self._visible if self._count else 0)
         self._job_camera, self._job_framebuffer = camera, framebuffer
         if clear is not None:
             fbo = framebuffer if framebuffer is not None else self._targets[1][1]
@@ -477,6 +480,8 @@ class SplatRenderer(AuxiliaryPasses):
             self._draw_slice(job, camera, fbo, job.next, count)
             if self.sync_timings or not math.isinf(budget_ms):
                 self.ctx.finish()
+            else:
+                job.synced = False
             ms = last_ms = (time.perf_counter() - t0) * 1e3
             if not math.isinf(budget_ms) and count >= 1024:
                 self._slice = self._next_slice(count, ms, budget_ms)
@@ -485,6 +490,8 @@ class SplatRenderer(AuxiliaryPasses):
             job.draw_ms += ms
         if job.next < job.total:
             return False
+        if job.fits and job.synced:
+            self.path_costs.record(job.width, job.height, job.points, job.draw_ms, job.total)
         t0 = time.perf_counter()
         if job.mode == "rgb" and self._lines is not None and self._lines.edge_count:
             self._begin_pass(fbo, (0, 0, job.width, job.height))
@@ -555,31 +562,6 @@ class SplatRenderer(AuxiliaryPasses):
             out = image[..., 3].copy()
         self.last_timings["readback"] = (time.perf_counter() - t0) * 1e3
         return out
-
-    def show(self, frame: InspectFrame) -> None:
-        """Upload an inspection frame (`Inspector.frame` in npga_core.inspection): Gaussians, style and lines."""
-        self.set_gaussians(frame.posed)
-        self.style, self.point_px = frame.style, frame.point_px
-        if frame.lines is None:
-            self.clear_lines()
-        else:
-            self.set_lines(frame.lines.positions, frame.lines.edges, frame.lines.colours)
-
-    def set_lines(self, positions: np.ndarray, edges: np.ndarray, colours: np.ndarray) -> None:
-        """Segments between rows of `positions` (M, 3), edges (E, 2), colours (E, 3|4), drawn over the splats by
-        `draw` in "rgb" mode until `clear_lines`."""
-        self._activate()
-        if self._lines is None:
-            self._lines = LinePass(self.ctx, load_shader)
-        self._lines.set(positions, edges, colours)
-
-    def clear_lines(self) -> None:
-        if self._lines is not None:
-            self._lines.clear()
-
-    @property
-    def line_count(self) -> int:
-        return 0 if self._lines is None else self._lines.edge_count
 
     def present(self, framebuffer: moderngl.Framebuffer, background=(0.0, 0.0, 0.0), flip_y: bool = True,
                 viewport: tuple[int, int, int, int] | None = None) -> None:
