@@ -30,6 +30,7 @@ import torch
 from npga_core.model.avatar import Avatar
 from npga_core.model.dynamics import ATTRIBUTE_OPS, cloud_tensors
 from npga_core.posing.chains import FUSED, Chain, Scratch, low_inputs, onednn_available
+from npga_core.posing.device import resolve_device
 from npga_core.posing.poserows import (
     OffsetLayout,
     RowSet,
@@ -40,7 +41,6 @@ from npga_core.posing.poserows import (
     posed_buffers,
     support_span,
 )
-from npga_core.posing.device import resolve_device
 from npga_core.posing.precision import bf16_native, check_precision
 
 #: Attributes gathered into attribute-major rows before they are applied.
