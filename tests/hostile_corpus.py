@@ -261,6 +261,8 @@ def npga_files(folder: Path, good: Path) -> dict[str, Path]:
         "garbage": os.urandom(4096),
         "expression std 1e-45": with_values("expression.std", 1e-45),
         "expression mean 3e38": with_values("expression.mean", 3e38),
+        "integer of 5000 digits in the header": with_header(text=json.dumps(header).replace(
+            '"format_version": 1', '"format_version": ' + "9" * 5000).encode()),
     }
     return {**_write_all(folder, ".npga", cases), **_special(folder, "avatar.npga")}
 

@@ -139,12 +139,10 @@ def _camera(args, framing_points: np.ndarray) -> Camera:
         if value is not None and not 1 <= value <= 16384:
             raise RenderError(f"--{name} {value}: must be in 1..16384")
     if args.camera is not None:
-        from npga_core.files.untrusted import MAX_IMAGE_SIDE, read_json
+        from npga_core.files.rig import load_camera
+        from npga_core.files.untrusted import MAX_IMAGE_SIDE
 
-        try:  # untrusted JSON: regular file, size and depth bounds, image sides GL can allocate
-            cam = Camera.from_dict(read_json(args.camera, what="a camera file"), source=str(args.camera))
-        except ValueError as exc:
-            raise RenderError(str(exc)) from None
+        cam = load_camera(args.camera)  # untrusted JSON: regular file, size, depth and number bounds
         if max(cam.width, cam.height) > MAX_IMAGE_SIDE:
             raise RenderError(f"{args.camera}: image {cam.width}x{cam.height} is larger than {MAX_IMAGE_SIDE} "
                               "pixels on a side")
