@@ -205,8 +205,10 @@ def _evaluate(args) -> int:
             posed_frame = f
         render = renderer.render(cam, background)
         if use_cnn:
+            from npga_view.cli.signals import interruptible
             from npga_view.rendering.refinement import refine_frame
-            render = refine_frame(renderer, avatar.cnn, cam, background, rgb=render)
+            render = refine_frame(renderer, avatar.cnn, cam, background, rgb=render,
+                                  runner=lambda x: interruptible(avatar.cnn.refine, x))
             if render.shape[:2] != image.shape[:2]:  # a CNN that upsamples: area-filtered to the capture's size
                 import cv2
                 render = cv2.resize(render, (image.shape[1], image.shape[0]), interpolation=cv2.INTER_AREA)

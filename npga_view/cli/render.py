@@ -356,9 +356,11 @@ class _Frames:
         image = r.render(cam, self.background, self.mode)
         self._count(posed)
         if self.use_cnn:  # the window's Refiner takes the same path (npga_view/rendering/refinement.py)
+            from npga_view.cli.signals import interruptible
             from npga_view.rendering.refinement import refine_frame
 
-            image = refine_frame(r, self.avatar.cnn, cam, self.background, rgb=image)
+            cnn = self.avatar.cnn  # on a helper thread: SIGTERM/SIGINT end a CNN of minutes at once
+            image = refine_frame(r, cnn, cam, self.background, rgb=image, runner=lambda x: interruptible(cnn.refine, x))
         return image, to_display(image, self.mode)
 
     def _inspect(self, posed, code) -> tuple[np.ndarray, np.ndarray]:
