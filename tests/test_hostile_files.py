@@ -244,3 +244,19 @@ def test_console_entry_point(kind, world, tmp_path):
                        env={**os.environ, "PYTHONPATH": str(root), "DISPLAY": ""})
     assert r.returncode == 2, r.stderr[-2000:]
     assert r.stderr.count("\n") == 1 and str(p) in r.stderr and "Traceback" not in r.stderr, r.stderr
+
+
+@pytest.mark.parametrize("budget", ["0", "nan", "inf", "-1", "1e-9", "1e308"])
+def test_hostile_bake_budget_is_one_line(budget, world, tmp_path):
+    """`view --bake --bake-budget-mb B` with a budget no bake can use (0 made the viewer wait for a bake
+    forever; NaN passed the `<= 0` check): exit 2, one line naming the option, before any window."""
+    seq = tmp_path / "seq.npy"
+    np.save(seq, np.zeros((4, world["dim"]), np.float32))
+    err = tmp_path / "err"
+    reply = world["server"].run({"argv": ["view", str(world["avatar"]), "--sequence", str(seq), "--bake",
+                                          "--bake-budget-mb", budget, "--quit-after-frames", "1"],
+                                 "stdout": str(tmp_path / "out"), "stderr": str(err), "limit_mb": LIMIT_MB,
+                                 "timeout": TIMEOUT_S, "env": {}})
+    text = err.read_text()
+    assert not reply["timed_out"] and reply["signal"] is None and reply["exit"] == 2, text
+    assert len(text.strip().splitlines()) == 1 and "--bake-budget-mb" in text and "Traceback" not in text, text
