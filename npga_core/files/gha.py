@@ -35,6 +35,7 @@ import numpy as np
 import torch
 
 from npga_core.errors import AvatarFileError
+from npga_core.files.pose import similarity_pose
 from npga_core.files.sequences import DEFAULT_FPS, ExpressionSequence
 from npga_core.files.untrusted import (
     MAX_LOG_SCALE,
@@ -155,8 +156,10 @@ def read_config(path: Path) -> dict[str, float]:
     text = read_bytes(path, 1 << 20, "a GHA config")
     try:
         cfg = yaml.safe_load(text.decode("utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as e:
-        raise AvatarFileError(path, f"not a readable YAML config ({str(e).splitlines()[0][:120]})") from None
+    except (yaml.YAMLError, UnicodeDecodeError, ValueError) as e:  # ValueError: integers of > 4300 digits
+        raise AvatarFileError(path, f"not a readable YAML config ({(str(e).splitlines() or [''])[0][:120]})") from None
+    except RecursionError:
+        raise AvatarFileError(path, "not a readable YAML config (nested too deeply)") from None
     module = cfg.get("gaussianheadmodule") if isinstance(cfg, dict) else None
     if not isinstance(module, dict):
         raise AvatarFileError(path, "has no gaussianheadmodule section (not a GHA config)")
@@ -419,6 +422,7 @@ def read_gha_params(root: str | Path, fps: float = DEFAULT_FPS) -> ExpressionSeq
     if not np.isfinite(c).all() or not np.isfinite(scales).all() or np.abs(c).max() > 1e4:
         raise AvatarFileError(root, "has NaN, Inf or implausibly large values in exp_coeff or pose")
     p = np.stack(poses)
-    return ExpressionSequence(c.astype(np.float32), fps, root.name, rotation=p[:, :3], translation=p[:, 3:],
-                              scale=np.asarray(scales), frame_names=[f.parent.name for f in files],
+    pose = similarity_pose(p[:, :3], p[:, 3:], np.asarray(scales), len(p), root)  # checked, naming the folder
+    return ExpressionSequence(c.astype(np.float32), fps, root.name, pose=pose,
+                              frame_names=[f.parent.name for f in files],
                               pose_source="GHA params.npz: x' = s R(axis-angle) x + t, as GHA's generate()")
