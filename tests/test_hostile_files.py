@@ -329,3 +329,23 @@ def test_hostile_bake_budget_is_one_line(budget, world, tmp_path):
     text = err.read_text()
     assert not reply["timed_out"] and reply["signal"] is None and reply["exit"] == 2, text
     assert len(text.strip().splitlines()) == 1 and "--bake-budget-mb" in text and "Traceback" not in text, text
+
+
+def test_hostile_udp_packets_are_counted_bad():
+    """Live Link Face datagrams a broken or hostile sender may send (truncated, huge or negative subject lengths,
+    NaN/Inf/3e38 values, NaN sub-frames, rates of 0 or 10^9, wrong value counts, undecodable subjects, noise):
+    `decode` raises PacketError and nothing else, and the receiver counts them as bad without taking one."""
+    from npga_core.posing.livelink import LiveLinkReceiver, PacketError, decode
+
+    packets = hr.udp_packets()
+    taken = []
+    for name, data in packets.items():
+        try:
+            decode(data)
+            taken.append(name)
+        except PacketError:
+            pass
+    assert not taken, taken
+    with LiveLinkReceiver(port=0) as receiver:  # a free loopback port; fed directly
+        assert not any(receiver.feed(data) for data in packets.values())
+        assert receiver.counters.bad == len(packets) >= 20 and receiver.latest() is None
