@@ -16,7 +16,7 @@ from pathlib import Path
 import numpy as np
 
 from npga_core.camera.orbit import OrbitCamera
-from npga_core.errors import AvatarFileError
+from npga_core.errors import AvatarFileError, shown
 from npga_core.files.loading import load_avatar, load_sequence
 from npga_core.files.rig import fit_camera
 from npga_core.files.sequences import ExpressionSequence
@@ -143,7 +143,7 @@ class ViewerApp:
         self.adopt_avatar(avatar, path)
         self.edits.start(avatar, avatar.source)
         self._add_recent(path)
-        glfw.set_window_title(self.window, f"npga-view - {Path(path).name}")
+        glfw.set_window_title(self.window, f"npga-view - {shown(Path(path).name)}")
         return True
 
     def adopt_avatar(self, avatar: Avatar, path: str) -> None:

@@ -68,3 +68,58 @@ def test_window_reports_hostile_files_and_stays_up(display, tmp_path, monkeypatc
     finally:
         app.close()
     assert not (tmp_path / "npy" / hc.MARKER).exists()
+
+
+def test_window_shows_names_of_any_encoding(display, tmp_path, monkeypatch):
+    """Part names, provenance, presets, file names, recent paths, browsed folders and messages with lone UTF-16
+    surrogates, undecodable bytes and newlines: every panel (all forced open) draws them escaped through
+    npga_core.errors.shown, the window title takes them, and the window keeps drawing."""
+    import os
+
+    from imgui_bundle import imgui
+
+    from npga_view.app import ViewerApp
+    from npga_view.panels import files as files_panel
+
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    from npga_core.files.ply import save_ply
+
+    cases = tmp_path / "cases"
+    cases.mkdir()
+    good = tmp_path / "good.npga"
+    avatar = make_synthetic_avatar(300, seed=4)
+    save_avatar(avatar, good)
+    save_ply(make_synthetic_avatar(50, with_f=False, with_g=False).cloud, tmp_path / "good.ply")
+    named = hc.degenerate_avatars(cases, tmp_path / "good.ply", good)["lone surrogates and newlines in part names and "
+                                                                      "provenance"]
+    odd = tmp_path / os.fsdecode(b"odd-\xff\nname")  # undecodable byte and a newline in the folder's name
+    odd.mkdir()
+    src = odd / os.fsdecode(b"avatar-\xfe.npga")
+    src.write_bytes(named.read_bytes())
+    seq = odd / os.fsdecode(b"seq-\xfd\t.npy")
+    np.save(seq, np.zeros((5, avatar.code_dim), np.float32))
+    for name in ("open", "collapsing"):  # every tree node and header open, so that every panel draws its names
+        original = imgui.tree_node if name == "open" else imgui.collapsing_header
+
+        def forced(*a, _original=original, **k):
+            imgui.set_next_item_open(True, imgui.Cond_.always)
+            return _original(*a, **k)
+
+        monkeypatch.setattr(imgui, "tree_node" if name == "open" else "collapsing_header", forced)
+    monkeypatch.setitem(files_panel._ui, "browse", str(odd))
+    app = ViewerApp(900, 700, vsync=False, threads=1, remember_recent=False)
+    try:
+        assert app.open_avatar(str(src)), app.state.errors
+        assert app.open_sequence(str(seq)), app.state.errors
+        app.state.presets = {"smile\ud800\nwide": [0.0] * avatar.code_dim}
+        app.state.recent = [str(src), str(seq)]
+        app.state.report(f"a message naming {src}")
+        before = app.frames
+        for _ in range(12):
+            app.step()
+        assert app.frames == before + 12 and not app.should_close and app.window is not None
+        assert app.state.errors and all(e.isprintable() and "\\udcff" in e for e in app.state.errors)
+        app.screenshot(str(tmp_path / "names.png"))
+    finally:
+        app.close()

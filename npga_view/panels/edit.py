@@ -57,6 +57,7 @@ from npga_core.editing.edits import (
     same_file,
 )
 from npga_core.editing.selection import COMBINE_MODES, attribute_names, attribute_values
+from npga_core.errors import shown
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import ViewerState
 
@@ -177,7 +178,7 @@ def _centre_buttons(s: EditSession) -> None:
 def _range_tool(state: ViewerState, s: EditSession) -> None:
     names = attribute_names(s.avatar.cloud)
     _ui["attribute"] = min(_ui["attribute"], len(names) - 1)
-    changed, _ui["attribute"] = imgui.combo("Attribute", _ui["attribute"], names)
+    changed, _ui["attribute"] = imgui.combo("Attribute", _ui["attribute"], [shown(n) for n in names])
     name = names[_ui["attribute"]]
     key = (id(s.avatar.cloud), s.version, name)
     if _ui["hist"] is None or _ui["hist"][0] != key:
@@ -288,9 +289,9 @@ def _history(state: ViewerState, info: AppInfo, s: EditSession) -> None:
     done, undone = s.history.names()
     if imgui.begin_list_box("##history", imgui.ImVec2(-1, 110)):
         for i, name in enumerate(done):
-            imgui.selectable(f"{name}##done{i}", i == len(done) - 1)
+            imgui.selectable(f"{shown(name)}##done{i}", i == len(done) - 1)
         for name in undone:
-            imgui.text_disabled(f"  {name}")
+            imgui.text_disabled(f"  {shown(name)}")
         imgui.end_list_box()
 
 

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
+from npga_core.errors import shown
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import MAX_SLIDERS, ViewerState
 
@@ -41,7 +42,7 @@ def draw(state: ViewerState, info: AppInfo) -> None:
             state.follow_sequence = False
     if imgui.tree_node("Presets"):
         for name in list(ex.named) + [p for p in state.presets if p not in ex.named]:
-            if imgui.selectable(name, False)[0]:
+            if imgui.selectable(shown(name), False)[0]:
                 state.actions.append(("apply_preset", name))
         imgui.set_next_item_width(160)
         _, _ui["preset_name"] = imgui.input_text("##preset", _ui["preset_name"])

@@ -17,6 +17,7 @@ from pathlib import Path
 
 from imgui_bundle import imgui
 
+from npga_core.errors import shown
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import ViewerState
 
@@ -108,7 +109,7 @@ def _native_buttons() -> None:
 
 def _browser(state: ViewerState) -> None:
     folder = Path(_ui["browse"])
-    imgui.text_disabled(str(folder)[-60:])
+    imgui.text_disabled(shown(str(folder))[-60:])
     if imgui.begin_list_box("##browser", imgui.ImVec2(-1, 140)):
         if imgui.selectable("..", False)[0]:
             _ui["browse"] = str(folder.parent)
@@ -121,12 +122,12 @@ def _browser(state: ViewerState) -> None:
                 continue
             if p.is_dir():
                 is_track = (p / "00000" / "z_exp.npy").is_file()
-                if imgui.selectable(f"[{'seq' if is_track else 'dir'}] {p.name}", False)[0]:
+                if imgui.selectable(f"[{'seq' if is_track else 'dir'}] {shown(p.name)}", False)[0]:
                     if is_track:
                         state.actions.append(("open_sequence", str(p)))
                     else:
                         _ui["browse"] = str(p)
-            elif p.suffix in AVATAR_EXT + SEQUENCE_EXT and imgui.selectable(p.name, False)[0]:
+            elif p.suffix in AVATAR_EXT + SEQUENCE_EXT and imgui.selectable(shown(p.name), False)[0]:
                 kind = "open_avatar" if p.suffix in AVATAR_EXT else "open_sequence"
                 state.actions.append((kind, str(p)))
         imgui.end_list_box()
@@ -136,9 +137,9 @@ def draw(state: ViewerState, info: AppInfo) -> None:
     if not imgui.collapsing_header("Files", imgui.TreeNodeFlags_.default_open):
         return
     a = info.avatar
-    imgui.text_wrapped(f"Avatar: {Path(state.avatar_path).name if state.avatar_path else '-'}"
+    imgui.text_wrapped(f"Avatar: {shown(Path(state.avatar_path).name) if state.avatar_path else '-'}"
                        + (f" ({len(a):,} Gaussians)" if a is not None else ""))
-    imgui.text_wrapped(f"Sequence: {Path(state.sequence_path).name if state.sequence_path else '-'}")
+    imgui.text_wrapped(f"Sequence: {shown(Path(state.sequence_path).name) if state.sequence_path else '-'}")
     imgui.set_next_item_width(-1)
     _, _ui["path"] = imgui.input_text("##path", _ui["path"])
     remember(info, "path_input")
@@ -160,7 +161,7 @@ def draw(state: ViewerState, info: AppInfo) -> None:
         imgui.tree_pop()
     if state.recent and imgui.tree_node("Recent"):
         for p in state.recent:
-            if imgui.selectable(p if len(p) < 50 else "..." + p[-47:], False)[0]:
+            if imgui.selectable(shown(p if len(p) < 50 else "..." + p[-47:]), False)[0]:
                 ext = Path(p).suffix
                 kind = "open_sequence" if ext in SEQUENCE_EXT or Path(p).is_dir() else "open_avatar"
                 state.actions.append((kind, p))

@@ -26,6 +26,7 @@ from __future__ import annotations
 from imgui_bundle import imgui
 
 from npga_core.editing.keyframes import INTERPOLATIONS, KeyframeTimeline
+from npga_core.errors import shown
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import ViewerState
 
@@ -95,7 +96,7 @@ def _add_keys(state: ViewerState, info: AppInfo, tl: KeyframeTimeline, now: floa
             _ui["preset"] = min(_ui["preset"], len(names) - 1)
             imgui.same_line()
             imgui.set_next_item_width(120)
-            _, _ui["preset"] = imgui.combo("##kfpreset", _ui["preset"], names)
+            _, _ui["preset"] = imgui.combo("##kfpreset", _ui["preset"], [shown(n) for n in names])
             preset = names[_ui["preset"]]
         imgui.same_line()
         imgui.set_next_item_width(80)
@@ -147,7 +148,7 @@ def _key_list(state: ViewerState, tl: KeyframeTimeline, track: str) -> None:
             state.actions.append(("kf_remove", {"track": track, "index": i}))
         if key.label:
             imgui.same_line()
-            imgui.text_disabled(key.label)
+            imgui.text_disabled(shown(key.label))
         if changes:
             state.actions.append(("kf_update", {"track": track, "index": i, "changes": changes}))
         imgui.pop_id()
