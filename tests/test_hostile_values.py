@@ -58,6 +58,17 @@ def test_video_at_a_path_with_undecodable_bytes(tmp_path):
     assert out.is_file() and out.stat().st_size > 0
 
 
+def test_render_to_a_path_with_undecodable_bytes(degenerate, tmp_path):
+    """`render --out` at a name with an undecodable byte: written (OpenCV's imwrite crashed with SIGSEGV)."""
+    out = os.fsencode(tmp_path) + b"/render-\xff.png"
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, "-m", "npga_view.cli", "render", str(degenerate["all at one point"]),
+                        "--out", os.fsdecode(out), "--width", "32", "--height", "24"], capture_output=True, text=True,
+                       timeout=300, cwd=root, env={**os.environ, "PYTHONPATH": str(root), "DISPLAY": ""})
+    assert r.returncode == 0 and "Traceback" not in r.stderr, (r.returncode, r.stderr[-2000:])
+    assert os.path.getsize(out) > 0
+
+
 def test_video_rate_that_rounds_to_zero_is_one_line():
     from npga_view.video import VideoWriter
 
