@@ -123,3 +123,49 @@ def test_window_shows_names_of_any_encoding(display, tmp_path, monkeypatch):
         app.screenshot(str(tmp_path / "names.png"))
     finally:
         app.close()
+
+
+def test_window_with_an_avatar_of_0_gaussians(display, tmp_path, monkeypatch):
+    """A degenerate but valid avatar of 0 Gaussians, from a file and left by deleting every Gaussian in the
+    window: it opens, its pose arrives, the view is the background only, the panels say "0 Gaussians", its edits
+    autosave and Recover reopens them, all without an error."""
+    import time
+
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    from npga_view.app import ViewerApp
+
+    zero, good = tmp_path / "zero.npga", tmp_path / "good.npga"
+    save_avatar(make_synthetic_avatar(0, seed=3), zero)
+    save_avatar(make_synthetic_avatar(300, seed=4), good)
+    app = ViewerApp(900, 700, vsync=False, threads=1, remember_recent=False)
+    try:
+        assert app.open_avatar(str(zero)), app.state.errors
+        app.state.show_stats = False
+        deadline = time.monotonic() + 180  # a bound on a hang: the worker's first pose
+        while (app.info.canonical or app.info.posing) and time.monotonic() < deadline:
+            app.step()
+        for _ in range(3):
+            app.step()
+        assert not app.info.canonical and len(app.info.avatar) == 0 and not app.state.errors
+        view = app.read_window(viewport_only=True)
+        assert (view == view[0, 0]).all()  # the background only
+        app.screenshot(str(tmp_path / "zero.png"))
+        assert app.open_avatar(str(good)), app.state.errors
+        for action in (("select_all", None), ("edit_delete", None)):
+            app.state.actions.append(action)
+            app.step()
+        session = app.info.edit
+        assert session is not None and len(session.avatar) == 0 and session.dirty
+        saved = session.autosave()  # what the window's autosave timer and close do
+        assert saved is not None and saved.is_file()
+        app.state.actions.append(("edit_recover", str(good)))
+        for _ in range(5):
+            app.step()
+        assert app.info.edit is not None and len(app.info.edit.avatar) == 0 and not app.state.errors, \
+            app.state.errors
+        before = app.frames
+        app.step()
+        assert app.frames == before + 1 and not app.should_close
+    finally:
+        app.close()
