@@ -285,24 +285,16 @@ def _limit_address_space() -> None:
     resource.setrlimit(resource.RLIMIT_AS, (8 << 30, 8 << 30))  # far below what the hostile headers claim
 
 
-@pytest.mark.parametrize("kind", ["npy huge shape", "deep keyframes", "huge camera", "fifo avatar"])
+@pytest.mark.parametrize("kind", ["npy huge shape", "fifo avatar"])
 def test_console_entry_point(kind, world, tmp_path):
-    """The cases of the issue, through `python -m npga_view.cli` in a fresh process with RLIMIT_AS set in
-    preexec_fn: exit 2, one line naming the file, no traceback, no hang."""
-    avatar, out = str(world["avatar"]), str(tmp_path / "o.png")
+    """Cases of the issue through `python -m npga_view.cli` in a fresh process with RLIMIT_AS set in preexec_fn
+    (the rest of the corpus runs `main` in forked children; deep keyframes and a huge camera are its cases too):
+    exit 2, one line naming the file, no traceback, no hang."""
+    avatar = str(world["avatar"])
     if kind == "npy huge shape":
         p = tmp_path / "huge.npy"
         p.write_bytes(hc._npy_header((10**9, 10**6)))
         argv = ["export", avatar, "--out", str(tmp_path / "o.ply"), "--expr", str(p)]
-    elif kind == "deep keyframes":
-        p = tmp_path / "deep.json"
-        p.write_bytes(b"[" * 200000 + b"]" * 200000)
-        argv = ["render", avatar, "--timeline", str(p), "--out", str(tmp_path / "o.mp4")]
-    elif kind == "huge camera":
-        p = tmp_path / "cam.json"
-        p.write_text(json.dumps({"width": 10**6, "height": 10**6, "fx": 1.0, "fy": 1.0, "cx": 0.0, "cy": 0.0,
-                                 "world_to_camera": np.eye(4).tolist()}))
-        argv = ["render", avatar, "--camera", str(p), "--out", out]
     else:
         p = tmp_path / "fifo.npga"
         os.mkfifo(p)

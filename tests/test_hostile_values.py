@@ -155,8 +155,8 @@ def test_sigterm_ends_a_render_inside_a_cnn_of_minutes(tmp_path):
                             text=True, cwd=root, env={**os.environ, "PYTHONPATH": str(root), "DISPLAY": ""})
     try:
         deadline = time.monotonic() + 300
-        while proc.poll() is None and _cpu_seconds(proc.pid) < 16.0 and time.monotonic() < deadline:
-            time.sleep(0.2)  # imports, pose, splats and the latent pass take < 10 CPU-s: then the convolution
+        while proc.poll() is None and _cpu_seconds(proc.pid) < 12.0 and time.monotonic() < deadline:
+            time.sleep(0.2)  # imports, pose, splats and the latent pass take ~8 CPU-s: then the convolution
         assert proc.poll() is None, proc.communicate()[1][-2000:]
         proc.send_signal(signal.SIGTERM)
         _, err = proc.communicate(timeout=30)  # a bound on a hang; the convolution alone takes minutes here
