@@ -12,7 +12,7 @@ from typing import TYPE_CHECKING, Protocol
 
 import numpy as np
 
-from npga_core.errors import AvatarFileError
+from npga_core.errors import AvatarFileError, shown
 from npga_core.files.loading import load_avatar, load_sequence
 from npga_core.files.sequences import ExpressionSequence
 from npga_core.model.avatar import Avatar
@@ -66,7 +66,7 @@ def open_avatar(app: OpeningHost, path: str) -> bool:
     app.edits.start(avatar, avatar.source)
     add_recent(app, path)
     if app.window is not None:
-        app.window.set_title(f"npga-view - {Path(path).name}")
+        app.window.set_title(f"npga-view - {shown(Path(path).name)}")  # no raw surrogates for glfw
     return True
 
 

@@ -14,7 +14,7 @@ from pathlib import Path
 import numpy as np
 
 from npga_core.camera.orbit import OrbitCamera
-from npga_core.errors import AvatarFileError
+from npga_core.errors import AvatarFileError, shown
 from npga_core.files.atomic import atomic_write
 from npga_core.files.places import user_config_dir
 from npga_core.files.untrusted import read_json
@@ -123,7 +123,7 @@ class ViewerState:
 
     def report(self, message: str) -> None:
         """Show an error in the UI (kept short, newest last, at most 5)."""
-        self.errors = (self.errors + [" ".join(str(message).split())])[-5:]
+        self.errors = (self.errors + [shown(" ".join(str(message).split()))])[-5:]
 
     def add_recent(self, path: str) -> None:
         path = str(Path(path).resolve()) if path != "demo" else path

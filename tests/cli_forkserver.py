@@ -65,9 +65,13 @@ def _child(req: dict) -> int:
 
 
 def _serve() -> None:
-    import npga_view.cli.main  # noqa: F401 - import the project once, before forking
-    from npga_core.files import loading  # noqa: F401
-    from npga_view.cli import export, gui, info, render  # noqa: F401
+    import cv2  # noqa: F401 - import the project and what its readers import lazily once, before forking
+    import yaml  # noqa: F401
+
+    import npga_view.cli.main  # noqa: F401
+    from npga_core.evaluation import capture  # noqa: F401
+    from npga_core.files import gha, loading  # noqa: F401
+    from npga_view.cli import export, gui, importer, info, render  # noqa: F401
 
     print(json.dumps({"ready": True}), flush=True)
     for line in sys.stdin:

@@ -261,6 +261,8 @@ def npga_files(folder: Path, good: Path) -> dict[str, Path]:
         "garbage": os.urandom(4096),
         "expression std 1e-45": with_values("expression.std", 1e-45),
         "expression mean 3e38": with_values("expression.mean", 3e38),
+        "integer of 5000 digits in the header": with_header(text=json.dumps(header).replace(
+            '"format_version": 1', '"format_version": ' + "9" * 5000).encode()),
     }
     return {**_write_all(folder, ".npga", cases), **_special(folder, "avatar.npga")}
 
@@ -570,55 +572,3 @@ def recover_autosave(source: str) -> int:
         print(f"npga-view: error: {e}", file=sys.stderr)
         return 2
     return 0
-
-
-# == #25 ARKit takes (Live Link Face CSV, ARKit JSON), opened wherever a sequence opens ==========================
-_LLF_HEADER = b"Timecode,BlendShapeCount,EyeBlinkLeft,JawOpen,HeadYaw,HeadPitch,HeadRoll\n"
-
-
-def _sparse(path: Path, size: int) -> Path:
-    with open(path, "wb") as fh:  # a hole: claims the size without writing it
-        fh.truncate(size)
-    return path
-
-
-def arkit_takes(folder: Path) -> dict[str, Path]:
-    """Live Link Face CSV and ARKit JSON takes (`--sequence take.csv|take.json`)."""
-    row = b"10:00:00:00.000,5,0.1,0.2,0,0,0\n"
-    csv_cases = {
-        "csv: empty file": b"",
-        "csv: header only": _LLF_HEADER,
-        "csv: no Timecode column": b"Frame,EyeBlinkLeft\n0,0.1\n",
-        "csv: NaN weight": _LLF_HEADER + b"10:00:00:00.000,5,nan,0.2,0,0,0\n",
-        "csv: Inf head angle": _LLF_HEADER + b"10:00:00:00.000,5,0.1,0.2,inf,0,0\n",
-        "csv: truncated row": _LLF_HEADER + row + b"10:00:00:01.000,5,0.1",
-        "csv: bad timecode": _LLF_HEADER + b"99:99:99:99.9,5,0.1,0.2,0,0,0\n",
-        "csv: timecode going back": _LLF_HEADER + row.replace(b":00.000", b":05.000") + row,
-        "csv: huge weight": _LLF_HEADER + b"10:00:00:00.000,5,1e308,0.2,0,0,0\n",
-        "csv: no known shape": b"Timecode,Foo,Bar\n10:00:00:00.000,0.1,0.2\n",
-        "csv: not UTF-8": _LLF_HEADER + b"\xff\xfe" * 40,
-        "csv: NUL bytes": b"Timecode,EyeBlinkLeft\n\x00\x00\x00\n",
-        "csv: a million columns": b"Timecode," + b",".join(b"c%d" % i for i in range(100_000)) + b"\n",
-    }
-    json_cases = {
-        "json: empty file": b"",
-        "json: nested 100000 deep": b"[" * 100_000 + b"]" * 100_000,
-        "json: NaN weight": b'{"names": ["jawOpen"], "frames": [{"weights": [NaN]}]}',
-        "json: huge integer": b'{"jawOpen": [' + b"9" * 5000 + b"]}",
-        "json: weights of the wrong length": b'{"names": ["jawOpen", "eyeBlinkLeft"], "frames": [{"weights": [0.1]}]}',
-        "json: names not strings": b'{"names": [1, 2], "frames": []}',
-        "json: fps zero": b'{"names": ["jawOpen"], "metadata": {"fps": 0}, "frames": [{"weights": [0.1]}]}',
-        "json: categories without names": b'[[{"score": 0.1}]]',
-        "json: series of unequal length": b'{"jawOpen": [0.1], "eyeBlinkLeft": [0.1, 0.2]}',
-        "json: a number": b"42",
-        "json: times going back": b'{"names": ["jawOpen"], "frames": [{"weights": [0.1], "time": 1}, '
-                                  b'{"weights": [0.2], "time": 0}]}',
-        "json: truncated": b'{"names": ["jawOpen"], "frames": [{"weights": [0.1',
-    }
-    out = {**_write_all(folder, ".csv", csv_cases)}
-    jdir = folder / "json"
-    jdir.mkdir()
-    out |= _write_all(jdir, ".json", json_cases)
-    out["csv: 300 MB (sparse)"] = _sparse(folder / "huge.csv", 300 * 2**20)
-    out["json: 300 MB (sparse)"] = _sparse(folder / "huge.json", 300 * 2**20)
-    return {**out, **_special(folder, "take.csv"), **_special(jdir, "take.json")}

@@ -8,6 +8,8 @@ import numpy as np
 import pytest
 
 from npga_core.camera.cameras import Camera, frame_points, look_at
+from npga_core.errors import AvatarFileError
+from npga_core.files.rig import load_camera
 
 
 def test_look_at_opencv_axes():
@@ -63,7 +65,7 @@ def test_json_round_trip(tmp_path):
     cam = Camera(look_at((0.1, 0.2, 1.0), (0, 0, 0)).world_to_camera, 1000.5, 1001.0, 274.0, 400.5, 550, 802)
     path = tmp_path / "cam.json"
     cam.to_json(path)
-    back = Camera.from_json(path)
+    back = load_camera(path)
     np.testing.assert_array_equal(back.world_to_camera, cam.world_to_camera)
     assert (back.fx, back.fy, back.cx, back.cy, back.width, back.height) == (1000.5, 1001.0, 274.0, 400.5, 550, 802)
     assert set(json.loads(path.read_text())) == {"width", "height", "fx", "fy", "cx", "cy", "world_to_camera"}
@@ -72,7 +74,7 @@ def test_json_round_trip(tmp_path):
 @pytest.mark.parametrize(
     ("content", "problem"),
     [
-        (None, "cannot read"),
+        (None, "no such file"),
         ("{not json", "not valid JSON"),
         ("[1, 2]", "expected a JSON object"),
         ('{"width": 10, "height": 10}', "missing key(s) fx"),
@@ -91,8 +93,8 @@ def test_bad_json_names_file_and_problem(tmp_path, content, problem):
     path = tmp_path / "bad_camera.json"
     if content is not None:
         path.write_text(content)
-    with pytest.raises(ValueError) as err:
-        Camera.from_json(path)
+    with pytest.raises(AvatarFileError) as err:
+        load_camera(path)
     message = str(err.value)
     assert str(path) in message and problem in message and "\n" not in message
 

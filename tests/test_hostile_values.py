@@ -58,6 +58,17 @@ def test_video_at_a_path_with_undecodable_bytes(tmp_path):
     assert out.is_file() and out.stat().st_size > 0
 
 
+def test_render_to_a_path_with_undecodable_bytes(degenerate, tmp_path):
+    """`render --out` at a name with an undecodable byte: written (OpenCV's imwrite crashed with SIGSEGV)."""
+    out = os.fsencode(tmp_path) + b"/render-\xff.png"
+    root = Path(__file__).resolve().parents[1]
+    r = subprocess.run([sys.executable, "-m", "npga_view.cli", "render", str(degenerate["all at one point"]),
+                        "--out", os.fsdecode(out), "--width", "32", "--height", "24"], capture_output=True, text=True,
+                       timeout=300, cwd=root, env={**os.environ, "PYTHONPATH": str(root), "DISPLAY": ""})
+    assert r.returncode == 0 and "Traceback" not in r.stderr, (r.returncode, r.stderr[-2000:])
+    assert os.path.getsize(out) > 0
+
+
 def test_video_rate_that_rounds_to_zero_is_one_line():
     from npga_view.video import VideoWriter
 
@@ -109,3 +120,51 @@ def test_stage2_rows_do_not_pin_their_tables(tmp_path):
         _row(tmp_path / f"{t:05d}" / "z_exp.npy", t, 3, (), budget)
     with pytest.raises(Exception, match="z_exp.npy"):
         _row(tmp_path / "00002" / "z_exp.npy", 2, 3, (), budget)
+
+
+def _cpu_seconds(pid: int) -> float:
+    fields = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()
+    return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
+
+
+def test_sigterm_ends_a_render_inside_a_cnn_of_minutes(tmp_path):
+    """A valid avatar whose CNN's costs are within the header bounds but take minutes on a CPU (a 15x15
+    convolution of 192 -> 192 channels at 800x600, one call into C of ~3 CPU-minutes): SIGTERM while the render
+    is inside it ends the render at once (the CNN runs on a helper thread, npga_view/cli/signals.interruptible)
+    with one line, exit 128 + 15 and nothing written. Before, the signal waited for the convolution to end."""
+    import signal
+    import time
+
+    import torch
+
+    from npga_core.files.checkpoint import save_avatar
+    from npga_core.model.cnn import CNNConfig, ConvLayer, ScreenCNN
+    from npga_core.model.synthetic import make_synthetic_avatar
+
+    avatar = make_synthetic_avatar(200, seed=2, latent_dim=189, code_dim=16, hidden=32, depth=2)
+    cnn = ScreenCNN(CNNConfig([ConvLayer(192, 192, 15, "relu"), ConvLayer(192, 3, 15, None)]))
+    with torch.no_grad():
+        for p in cnn.parameters():
+            p.mul_(0.01)
+    avatar.cnn = cnn.eval()
+    src, out = tmp_path / "big-cnn.npga", tmp_path / "o.png"
+    save_avatar(avatar, src)
+    root = Path(__file__).resolve().parents[1]
+    proc = subprocess.Popen([sys.executable, "-m", "npga_view.cli", "render", str(src), "--out", str(out),
+                             "--width", "800", "--height", "600"], stdout=subprocess.PIPE, stderr=subprocess.PIPE,
+                            text=True, cwd=root, env={**os.environ, "PYTHONPATH": str(root), "DISPLAY": ""})
+    try:
+        deadline = time.monotonic() + 300
+        while proc.poll() is None and _cpu_seconds(proc.pid) < 12.0 and time.monotonic() < deadline:
+            time.sleep(0.2)  # imports, pose, splats and the latent pass take ~8 CPU-s: then the convolution
+        assert proc.poll() is None, proc.communicate()[1][-2000:]
+        proc.send_signal(signal.SIGTERM)
+        _, err = proc.communicate(timeout=30)  # a bound on a hang; the convolution alone takes minutes here
+    finally:
+        if proc.poll() is None:
+            proc.kill()
+            proc.wait()
+    assert proc.returncode == 128 + signal.SIGTERM, err[-2000:]
+    lines = [line for line in err.splitlines() if line.strip()]
+    assert len(lines) == 1 and "stopped by SIGTERM" in lines[0] and "Traceback" not in err, err[-2000:]
+    assert not out.exists()

@@ -71,3 +71,104 @@ def test_window_reports_hostile_files_and_stays_up(display, tmp_path, monkeypatc
     finally:
         app.close()
     assert not (tmp_path / "npy" / hc.MARKER).exists()
+
+
+def test_window_shows_names_of_any_encoding(display, tmp_path, monkeypatch):
+    """Part names, provenance, presets, file names, recent paths, browsed folders and messages with lone UTF-16
+    surrogates, undecodable bytes and newlines: every panel (all forced open) draws them escaped through
+    npga_core.errors.shown, the window title takes them, and the window keeps drawing."""
+    import os
+
+    from imgui_bundle import imgui
+
+    from npga_view.app import ViewerApp
+    from npga_view.panels import files as files_panel
+
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    from npga_core.files.ply import save_ply
+
+    cases = tmp_path / "cases"
+    cases.mkdir()
+    good = tmp_path / "good.npga"
+    avatar = make_synthetic_avatar(300, seed=4)
+    save_avatar(avatar, good)
+    save_ply(make_synthetic_avatar(50, with_f=False, with_g=False).cloud, tmp_path / "good.ply")
+    named = hc.degenerate_avatars(cases, tmp_path / "good.ply", good)["lone surrogates and newlines in part names and "
+                                                                      "provenance"]
+    odd = tmp_path / os.fsdecode(b"odd-\xff\nname")  # undecodable byte and a newline in the folder's name
+    odd.mkdir()
+    src = odd / os.fsdecode(b"avatar-\xfe.npga")
+    src.write_bytes(named.read_bytes())
+    seq = odd / os.fsdecode(b"seq-\xfd\t.npy")
+    np.save(seq, np.zeros((5, avatar.code_dim), np.float32))
+    for name in ("open", "collapsing"):  # every tree node and header open, so that every panel draws its names
+        original = imgui.tree_node if name == "open" else imgui.collapsing_header
+
+        def forced(*a, _original=original, **k):
+            imgui.set_next_item_open(True, imgui.Cond_.always)
+            return _original(*a, **k)
+
+        monkeypatch.setattr(imgui, "tree_node" if name == "open" else "collapsing_header", forced)
+    monkeypatch.setitem(files_panel._ui, "browse", str(odd))
+    app = ViewerApp(900, 700, vsync=False, threads=1, remember_recent=False)
+    try:
+        assert app.open_avatar(str(src)), app.state.errors
+        assert app.open_sequence(str(seq)), app.state.errors
+        app.state.presets = {"smile\ud800\nwide": [0.0] * avatar.code_dim}
+        app.state.recent = [str(src), str(seq)]
+        app.state.report(f"a message naming {src}")
+        before = app.frames
+        for _ in range(12):
+            app.step()
+        assert app.frames == before + 12 and not app.should_close and app.window is not None
+        assert app.state.errors and all(e.isprintable() and "\\udcff" in e for e in app.state.errors)
+        app.screenshot(str(tmp_path / "names.png"))
+    finally:
+        app.close()
+
+
+def test_window_with_an_avatar_of_0_gaussians(display, tmp_path, monkeypatch):
+    """A degenerate but valid avatar of 0 Gaussians, from a file and left by deleting every Gaussian in the
+    window: it opens, its pose arrives, the view is the background only, the panels say "0 Gaussians", its edits
+    autosave and Recover reopens them, all without an error."""
+    import time
+
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    from npga_view.app import ViewerApp
+
+    zero, good = tmp_path / "zero.npga", tmp_path / "good.npga"
+    save_avatar(make_synthetic_avatar(0, seed=3), zero)
+    save_avatar(make_synthetic_avatar(300, seed=4), good)
+    app = ViewerApp(900, 700, vsync=False, threads=1, remember_recent=False)
+    try:
+        assert app.open_avatar(str(zero)), app.state.errors
+        app.state.show_stats = False
+        deadline = time.monotonic() + 180  # a bound on a hang: the worker's first pose
+        while (app.info.canonical or app.info.posing) and time.monotonic() < deadline:
+            app.step()
+        for _ in range(3):
+            app.step()
+        assert not app.info.canonical and len(app.info.avatar) == 0 and not app.state.errors
+        view = app.read_window(viewport_only=True)
+        assert (view == view[0, 0]).all()  # the background only
+        app.screenshot(str(tmp_path / "zero.png"))
+        assert app.open_avatar(str(good)), app.state.errors
+        for action in (("select_all", None), ("edit_delete", None)):
+            app.state.actions.append(action)
+            app.step()
+        session = app.info.edit
+        assert session is not None and len(session.avatar) == 0 and session.dirty
+        saved = session.autosave()  # what the window's autosave timer and close do
+        assert saved is not None and saved.is_file()
+        app.state.actions.append(("edit_recover", str(good)))
+        for _ in range(5):
+            app.step()
+        assert app.info.edit is not None and len(app.info.edit.avatar) == 0 and not app.state.errors, \
+            app.state.errors
+        before = app.frames
+        app.step()
+        assert app.frames == before + 1 and not app.should_close
+    finally:
+        app.close()

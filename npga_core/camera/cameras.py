@@ -200,20 +200,6 @@ class Camera:
         except ValueError as exc:
             raise ValueError(f"{source}: {exc}") from None
 
-    @staticmethod
-    def from_json(path: str | Path) -> Camera:
-        """Read a camera JSON file; a missing or malformed file raises ValueError naming it and the problem."""
-        path = Path(path)
-        try:
-            text = path.read_text()
-        except OSError as exc:
-            raise ValueError(f"{path}: cannot read camera file ({exc.strerror or exc})") from None
-        try:
-            data = json.loads(text)
-        except json.JSONDecodeError as exc:
-            raise ValueError(f"{path}: not valid JSON ({exc.msg} at line {exc.lineno})") from None
-        return Camera.from_dict(data, source=str(path))
-
 
 def focal_from_fov(fov_y_deg: float, height: int) -> float:
     """Focal length in pixels for a vertical field of view."""

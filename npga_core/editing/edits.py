@@ -77,7 +77,9 @@ def autosave_path_for(source: str | Path | None) -> Path:
         key, stem = "untitled", "untitled"
     else:
         key, stem = str(Path(source).resolve()), Path(source).stem
-    return autosave_dir() / f"{stem}-{hashlib.sha1(key.encode()).hexdigest()[:12]}.npga"
+    # a name of any encoding (undecodable bytes, lone surrogates, newlines): hashed as it is, shown as "_"
+    stem = "".join(c if c.isprintable() and not 0xD800 <= ord(c) <= 0xDFFF else "_" for c in stem)
+    return autosave_dir() / f"{stem}-{hashlib.sha1(key.encode('utf-8', 'surrogatepass')).hexdigest()[:12]}.npga"
 
 
 def find_autosave(source: str | Path | None) -> Path | None:

@@ -9,6 +9,8 @@
   pixels of a 2048x2048 image: scaled to the file's own size, see GHA_ORIGINAL_RESOLUTION).
 
 A missing image, an unreadable file or a camera the rig lacks is one line in `problems`; the rest is evaluated.
+Images are PNG or JPEG regular files whose size is read from their headers before anything is decoded (at most
+`MAX_IMAGE_SIDE` a side: a few bytes of PNG can claim gigapixels); camera values are checked as `Camera` does.
 """
 
 from __future__ import annotations
@@ -24,7 +26,7 @@ from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError
 from npga_core.files.rig import load_rig
 from npga_core.files.sequences import ExpressionSequence
-from npga_core.files.untrusted import MAX_IMAGE_SIDE, read_npz, real_floats
+from npga_core.files.untrusted import MAX_IMAGE_SIDE, open_regular, read_npz, real_floats
 
 DEFAULT_BUDGET_BYTES = 1 << 30
 #: GHA's `dataset.original_resolution` (config/config.py: "should match the intrinsic"): its preprocessing saves K
@@ -93,16 +95,62 @@ class Capture:
         return self._cached_bytes
 
 
+def image_size(path: Path) -> tuple[int, int]:
+    """(width, height) of a PNG or JPEG from its header, nothing decoded; AvatarFileError when the file is missing,
+    not a regular file, neither format, or more than `MAX_IMAGE_SIDE` pixels a side."""
+    if not path.is_file():
+        raise AvatarFileError(path, "missing (no such image file)")
+    try:
+        with open_regular(path, "an image") as fh:
+            head = fh.read(24)
+            if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
+                size = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+            elif head[:2] == b"\xff\xd8":
+                size = _jpeg_size(fh)
+            else:
+                raise AvatarFileError(path, "unreadable image (not a PNG or JPEG)")
+    except OSError as e:
+        raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None
+    if size is None or min(size) < 1:
+        raise AvatarFileError(path, "unreadable image (no image size in its header)")
+    if max(size) > MAX_IMAGE_SIDE:
+        raise AvatarFileError(path, f"image of {size[0]}x{size[1]} pixels, more than {MAX_IMAGE_SIDE} a side")
+    return size
+
+
+def _jpeg_size(fh) -> tuple[int, int] | None:
+    """The frame size of a JPEG's first start-of-frame segment (markers walked from the start, at most 4096)."""
+    fh.seek(2)
+    for _ in range(4096):
+        m = fh.read(2)
+        if len(m) < 2 or m[0] != 0xFF:
+            return None
+        marker = m[1]
+        if marker == 0xFF:  # fill byte
+            fh.seek(-1, 1)
+            continue
+        if marker in (0x01, 0xD8) or 0xD0 <= marker <= 0xD7:
+            continue
+        seg = fh.read(2)
+        if len(seg) < 2:
+            return None
+        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
+            d = fh.read(5)
+            return (int.from_bytes(d[3:5], "big"), int.from_bytes(d[1:3], "big")) if len(d) == 5 else None
+        fh.seek(int.from_bytes(seg, "big") - 2, 1)
+    return None
+
+
 def read_image(path: Path, grey: bool = False) -> np.ndarray:
     """Float32 [0, 1] RGB (H, W, 3), or (H, W) with `grey` (the first channel of a colour file)."""
     import cv2
-    if not path.is_file():
-        raise AvatarFileError(path, "missing (no such image file)")
-    img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    image_size(path)  # before decoding: a regular PNG/JPEG file of a bounded size
+    try:
+        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        img = None
     if img is None:
         raise AvatarFileError(path, "unreadable image (not a PNG/JPEG OpenCV can decode)")
-    if max(img.shape[:2]) > MAX_IMAGE_SIDE:
-        raise AvatarFileError(path, f"image larger than {MAX_IMAGE_SIDE} pixels a side")
     scale = 65535.0 if img.dtype == np.uint16 else 255.0
     img = img.astype(np.float32) / scale
     if grey:
@@ -161,9 +209,10 @@ def _nersemble(root: Path) -> Capture:
             if serial not in rig:
                 problems.append(f"{f}: camera {serial} is not in the rig")
                 continue
-            cam = sized.get(serial) or _at_size(rig[serial], f)
-            if cam is None:
-                problems.append(f"{f}: unreadable image")
+            try:
+                cam = sized.get(serial) or _at_size(rig[serial], f)
+            except AvatarFileError as e:
+                problems.append(str(e))
                 continue
             sized[serial] = cam
             alpha = folder / "alpha_map" / f"cam_{serial}.png"
@@ -175,17 +224,16 @@ def _nersemble(root: Path) -> Capture:
     return Capture(root, NERSEMBLE, views, problems)
 
 
-def _at_size(cam: Camera, image: Path) -> Camera | None:
+def _at_size(cam: Camera, image: Path) -> Camera:
     """The rig camera scaled to the image's size (NeRSemble's images-Kx folders are downscaled)."""
-    import cv2
-    img = cv2.imread(str(image), cv2.IMREAD_UNCHANGED) if image.is_file() else None
-    if img is None:
-        return None
-    h, w = img.shape[:2]
+    w, h = image_size(image)
     if (w, h) == (cam.width, cam.height):
         return cam
     sx, sy = w / cam.width, h / cam.height
-    return Camera(cam.world_to_camera, cam.fx * sx, cam.fy * sy, cam.cx * sx, cam.cy * sy, w, h)
+    try:
+        return Camera(cam.world_to_camera, cam.fx * sx, cam.fy * sy, cam.cx * sx, cam.cy * sy, w, h)
+    except ValueError as e:
+        raise AvatarFileError(image, f"the rig's camera scaled to this image: {e}") from None
 
 
 def _gha(root: Path) -> Capture:
@@ -203,15 +251,12 @@ def _gha(root: Path) -> Capture:
             except AvatarFileError as e:
                 problems.append(str(e))
                 continue
-            if cam is None:
-                problems.append(f"{f}: unreadable image")
-                continue
             masks = sorted(folder.glob(f"mask_{cam_id}.*"))
             views[(frame, cam_id)] = View(frame, cam_id, cam, f, masks[0] if masks else None)
     return Capture(root, GHA, views, problems)
 
 
-def _gha_camera(path: Path, image: Path) -> Camera | None:
+def _gha_camera(path: Path, image: Path) -> Camera:
     if not path.is_file():
         raise AvatarFileError(path, "missing (the camera of " + image.name + ")")
     z = read_npz(path, 1 << 16, keys=("extrinsic", "intrinsic"))
@@ -223,13 +268,12 @@ def _gha_camera(path: Path, image: Path) -> Camera | None:
         raise AvatarFileError(path, f"extrinsic {ext.shape} / intrinsic {k.shape}: expected 3x4 and 3x3")
     w2c = np.eye(4)
     w2c[:3] = ext[:3]
-    import cv2
-    img = cv2.imread(str(image), cv2.IMREAD_UNCHANGED)
-    if img is None:
-        return None
-    h, w = img.shape[:2]
+    w, h = image_size(image)
     sx, sy = w / GHA_ORIGINAL_RESOLUTION, h / GHA_ORIGINAL_RESOLUTION  # K is in pixels of a 2048x2048 image
-    return Camera(w2c, k[0, 0] * sx, k[1, 1] * sy, k[0, 2] * sx, k[1, 2] * sy, w, h)
+    try:  # Camera checks focal lengths, principal point and a rigid world_to_camera
+        return Camera(w2c, k[0, 0] * sx, k[1, 1] * sy, k[0, 2] * sx, k[1, 2] * sy, w, h)
+    except ValueError as e:
+        raise AvatarFileError(path, f"bad camera: {e}") from None
 
 
 def code_index(sequence: ExpressionSequence, frame: int, position: int) -> int | None:

@@ -41,6 +41,9 @@ MAX_TAKE_BYTES = 64 * 2**20
 #: Most frames and columns in a take.
 MAX_FRAMES = 2_000_000
 MAX_COLUMNS = 512
+#: Most values (frames x shapes) a take's timing may make `resample` fill, and the largest angle (radians).
+MAX_RESAMPLED_VALUES = 1 << 26
+MAX_ANGLE = 1e3
 #: Common frame rates a Live Link Face timecode's frame field may count at.
 RATES = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 100.0, 120.0, 240.0)
 JSON_FPS = 30.0
@@ -143,10 +146,12 @@ def _checked_weights(w: np.ndarray, path: str | Path) -> np.ndarray:
     return w.astype(np.float32)
 
 
-def _angles(cols: dict[str, np.ndarray], names: tuple[str, ...]) -> np.ndarray | None:
+def _angles(cols: dict[str, np.ndarray], names: tuple[str, ...], path: Path) -> np.ndarray | None:
     if not all(n in cols for n in names):
         return None
     a = np.stack([cols[n] for n in names], axis=1)
+    if np.abs(a).max(initial=0.0) > MAX_ANGLE:
+        raise AvatarFileError(path, f"angles reach {float(np.abs(a).max()):.3g} radians (at most {MAX_ANGLE:g})")
     return None if not np.any(a) else a
 
 
@@ -204,7 +209,7 @@ def read_livelink_csv(path: str | Path) -> Take:
         raise AvatarFileError(path, "has no blendshape columns")
     w = np.stack([cols[n] for n in shape_names], axis=1)
     return Take(_checked_weights(w, path), shape_names, _checked_times(times, path), rate,
-                _angles(picked, ANGLE_NAMES[:3]), _angles(picked, ANGLE_NAMES[3:]), path.stem)
+                _angles(picked, ANGLE_NAMES[:3], path), _angles(picked, ANGLE_NAMES[3:], path), path.stem)
 
 
 def write_livelink_csv(path: str | Path, take: Take, start: float = 0.0) -> None:
@@ -366,6 +371,11 @@ def take_sequence(take: Take, basis: BlendshapeBasis, path: str | Path) -> tuple
         match = match_names(take.names, basis.names)
     except ValueError as e:
         raise AvatarFileError(path, str(e)) from None
+    n = int(math.floor((take.times[-1] - take.times[0]) * take.fps + 0.5)) + 1  # the frames `resample` fills
+    if n > MAX_FRAMES or n * max(len(take.names), 1) > MAX_RESAMPLED_VALUES:
+        raise AvatarFileError(path, f"its times span {n} frames at {take.fps:g} fps ({len(take.times)} rows "
+                              f"recorded), more than the {MAX_FRAMES} frames or {MAX_RESAMPLED_VALUES} values "
+                              "a take may fill")
     w = resample(take.times, match.apply(take.weights), take.fps)
     seq = ExpressionSequence(basis.codes(w), take.fps, take.name or Path(path).stem)
     if take.head is not None:

@@ -36,7 +36,7 @@ from npga_core.files.dynamics_header import (
     dynamics_section,
     dynamics_tensors,
 )
-from npga_core.files.untrusted import MAX_JSON_DEPTH, json_depth, open_regular, regular_file
+from npga_core.files.untrusted import MAX_JSON_DEPTH, open_regular, parse_json, regular_file
 from npga_core.model.avatar import Avatar
 from npga_core.model.cnn import CNNConfig
 from npga_core.model.expression import ExpressionSpace
@@ -222,19 +222,6 @@ class _Invalid(Exception):
     """A problem found while validating; turned into AvatarFileError with the path."""
 
 
-def _reject_constant(name: str) -> None:
-    raise _Invalid(f"header contains {name}, which is not valid JSON")
-
-
-def _unique_pairs(pairs: list) -> dict:
-    d = {}
-    for k, v in pairs:
-        if k in d:
-            raise _Invalid(f"header has the key {k!r} twice")
-        d[k] = v
-    return d
-
-
 def _int(d: dict, key: str, where: str, lo: int = 0, hi: int = 2**40) -> int:
     v = d.get(key)
     if isinstance(v, bool) or not isinstance(v, int):
@@ -260,30 +247,40 @@ def _read_header(path: Path) -> tuple[dict, int]:
     if size == 0:
         raise _Invalid("file is empty")
     with open_regular(path, "an .npga checkpoint") as fh:
-        magic = fh.read(8)
-        if magic != MAGIC[: len(magic)] or len(magic) < 8:
-            if magic == MAGIC[: len(magic)]:
-                raise _Invalid(f"truncated: {size} bytes, too short for the file signature")
-            raise _Invalid(f"not an .npga checkpoint (wrong magic {magic!r})")
-        raw_len = fh.read(8)
-        if len(raw_len) < 8:
-            raise _Invalid(f"truncated: {size} bytes, the header length is cut off")
-        hlen = int.from_bytes(raw_len, "little")
-        if hlen > MAX_HEADER_BYTES:
-            raise _Invalid(f"header length {hlen} bytes is implausible (limit {MAX_HEADER_BYTES})")
-        if 16 + hlen > size:
-            raise _Invalid(f"truncated: header needs {16 + hlen} bytes, the file has {size}")
+        hlen = _header_length(fh, size)
         text = fh.read(hlen)
-    if json_depth(text) > MAX_JSON_DEPTH:
-        raise _Invalid(f"header JSON is nested more than {MAX_JSON_DEPTH} levels deep")
-    try:
-        header = json.loads(text.decode("utf-8"), parse_constant=_reject_constant, object_pairs_hook=_unique_pairs)
-    except UnicodeDecodeError:
-        raise _Invalid("header is not UTF-8 text") from None
-    except json.JSONDecodeError as e:
-        raise _Invalid(f"header is not valid JSON ({e.msg} at byte {e.pos})") from None
-    except RecursionError:
-        raise _Invalid("header JSON is nested too deeply") from None
+    try:  # the one bounded JSON parse (depth, NaN, 5000-digit integers, duplicate keys)
+        header = parse_json(text, path, MAX_JSON_DEPTH, unique_keys=True)
+    except AvatarFileError as e:
+        raise _Invalid(f"header: {e.problem}") from None
+    _check_version(header)
+    _check_header_schema(header)
+    _check_blendshapes(header)
+    data_start = 16 + hlen
+    if data_start % ALIGN:
+        raise _Invalid(f"data section starts at {data_start}, not a multiple of {ALIGN}")
+    return header, data_start
+
+
+def _header_length(fh, size: int) -> int:
+    """The header length after the signature, checked against the file size."""
+    magic = fh.read(8)
+    if magic != MAGIC[: len(magic)] or len(magic) < 8:
+        if magic == MAGIC[: len(magic)]:
+            raise _Invalid(f"truncated: {size} bytes, too short for the file signature")
+        raise _Invalid(f"not an .npga checkpoint (wrong magic {magic!r})")
+    raw_len = fh.read(8)
+    if len(raw_len) < 8:
+        raise _Invalid(f"truncated: {size} bytes, the header length is cut off")
+    hlen = int.from_bytes(raw_len, "little")
+    if hlen > MAX_HEADER_BYTES:
+        raise _Invalid(f"header length {hlen} bytes is implausible (limit {MAX_HEADER_BYTES})")
+    if 16 + hlen > size:
+        raise _Invalid(f"truncated: header needs {16 + hlen} bytes, the file has {size}")
+    return hlen
+
+
+def _check_version(header: Any) -> None:
     if not isinstance(header, dict) or header.get("format") != "npga":
         raise _Invalid("header does not declare format 'npga'")
     version = header.get("format_version")
@@ -294,31 +291,13 @@ def _read_header(path: Path) -> tuple[dict, int]:
                        "update npga-view")
     if version < 1:
         raise _Invalid(f"format version {version} is not valid")
-    _check_header_schema(header)
-    _check_blendshapes(header)
-    data_start = 16 + hlen
-    if data_start % ALIGN:
-        raise _Invalid(f"data section starts at {data_start}, not a multiple of {ALIGN}")
-    return header, data_start
 
 
 def _check_header_schema(header: dict) -> None:
     g = header.get("gaussians")
     if not isinstance(g, dict):
         raise _Invalid("header has no 'gaussians' object")
-    _int(g, "count", "gaussians", 0, 2**31 - 1)
-    _int(g, "sh_degree", "gaussians", 0, 3)
-    _int(g, "feature_dim", "gaussians", 0, 4096)
-    _int(g, "latent_dim", "gaussians", 0, 4096)
-    parts = g.get("part_names", [])
-    if not isinstance(parts, list) or not all(isinstance(p, str) for p in parts) or len(parts) > 32767:
-        raise _Invalid("gaussians.part_names must be a list of strings")
-    if len(set(parts)) != len(parts):
-        raise _Invalid("gaussians.part_names has duplicate names")
-    blends = g.get("blend_names", [])
-    if (not isinstance(blends, list) or not all(isinstance(p, str) for p in blends) or len(blends) > 16
-            or len(set(blends)) != len(blends)):
-        raise _Invalid("gaussians.blend_names must be a list of at most 16 distinct strings")
+    _check_gaussians(g)
     if not isinstance(header.get("units", "m"), str):
         raise _Invalid("units must be a string")
     for key in ("dynamics", "cnn", "expression", "provenance"):
@@ -337,13 +316,7 @@ def _check_header_schema(header: dict) -> None:
             raise _Invalid(f"cnn: {e}") from None
     ex = header.get("expression")
     if ex:
-        _int(ex, "dim", "expression", 1, 65536)
-        _int(ex, "n_components", "expression", 0, 65536)
-        named = ex.get("named", [])
-        if not isinstance(named, list) or not all(isinstance(p, str) for p in named):
-            raise _Invalid("expression.named must be a list of strings")
-        if len(set(named)) != len(named):
-            raise _Invalid("expression.named has duplicate names")
+        _check_expression(ex)
     if not isinstance(header.get("tensors"), dict):
         raise _Invalid("header has no 'tensors' table")
 
@@ -369,6 +342,32 @@ def _blendshapes_of(header: dict, t: dict[str, np.ndarray], dynamics) -> Any:
         raise _Invalid(f"blendshapes: {e}") from None
 
 
+def _check_gaussians(g: dict) -> None:
+    _int(g, "count", "gaussians", 0, 2**31 - 1)
+    _int(g, "sh_degree", "gaussians", 0, 3)
+    _int(g, "feature_dim", "gaussians", 0, 4096)
+    _int(g, "latent_dim", "gaussians", 0, 4096)
+    parts = g.get("part_names", [])
+    if not isinstance(parts, list) or not all(isinstance(p, str) for p in parts) or len(parts) > 32767:
+        raise _Invalid("gaussians.part_names must be a list of strings")
+    if len(set(parts)) != len(parts):
+        raise _Invalid("gaussians.part_names has duplicate names")
+    blends = g.get("blend_names", [])
+    if (not isinstance(blends, list) or not all(isinstance(p, str) for p in blends) or len(blends) > 16
+            or len(set(blends)) != len(blends)):
+        raise _Invalid("gaussians.blend_names must be a list of at most 16 distinct strings")
+
+
+def _check_expression(ex: dict) -> None:
+    _int(ex, "dim", "expression", 1, 65536)
+    _int(ex, "n_components", "expression", 0, 65536)
+    named = ex.get("named", [])
+    if not isinstance(named, list) or not all(isinstance(p, str) for p in named):
+        raise _Invalid("expression.named must be a list of strings")
+    if len(set(named)) != len(named):
+        raise _Invalid("expression.named has duplicate names")
+
+
 def _map_tensors(path: Path, header: dict, data_start: int) -> dict[str, np.ndarray]:
     spec = expected_tensors(header)
     table = header["tensors"]
@@ -383,23 +382,7 @@ def _map_tensors(path: Path, header: dict, data_start: int) -> dict[str, np.ndar
     end_needed = data_start
     entries = {}
     for name, (dt, shape) in spec.items():
-        e = table[name]
-        if not isinstance(e, dict):
-            raise _Invalid(f"tensor table entry {name} is not an object")
-        if e.get("dtype") != dt:
-            raise _Invalid(f"{name} has dtype {e.get('dtype')!r}, expected {dt}")
-        shp = e.get("shape")
-        if not isinstance(shp, list) or any(isinstance(s, bool) or not isinstance(s, int) for s in shp):
-            raise _Invalid(f"{name} has a malformed shape {shp!r}")
-        if tuple(shp) != shape:
-            raise _Invalid(f"{name} has shape {tuple(shp)}, the header implies {shape}")
-        off = _int(e, "offset", name, 0, 2**62)
-        nbytes = _int(e, "nbytes", name, 0, 2**62)
-        want = math.prod(shape) * _DTYPES[dt].itemsize
-        if nbytes != want:
-            raise _Invalid(f"{name} declares {nbytes} bytes, its shape needs {want}")
-        if off % ALIGN:
-            raise _Invalid(f"{name} offset {off} is not aligned to {ALIGN}")
+        off, nbytes = _table_entry(table[name], name, dt, shape)
         entries[name] = (dt, shape, off, nbytes)
         end_needed = max(end_needed, data_start + off + nbytes)
     if end_needed > size:
@@ -417,6 +400,27 @@ def _map_tensors(path: Path, header: dict, data_start: int) -> dict[str, np.ndar
     for name, (dt, shape, off, nbytes) in entries.items():
         out[name] = data[off : off + nbytes].view(_DTYPES[dt]).reshape(shape)
     return out
+
+
+def _table_entry(e: Any, name: str, dt: str, shape: tuple[int, ...]) -> tuple[int, int]:
+    """(offset, nbytes) of one tensor table entry, checked against the dtype and shape the header implies."""
+    if not isinstance(e, dict):
+        raise _Invalid(f"tensor table entry {name} is not an object")
+    if e.get("dtype") != dt:
+        raise _Invalid(f"{name} has dtype {e.get('dtype')!r}, expected {dt}")
+    shp = e.get("shape")
+    if not isinstance(shp, list) or any(isinstance(s, bool) or not isinstance(s, int) for s in shp):
+        raise _Invalid(f"{name} has a malformed shape {shp!r}")
+    if tuple(shp) != shape:
+        raise _Invalid(f"{name} has shape {tuple(shp)}, the header implies {shape}")
+    off = _int(e, "offset", name, 0, 2**62)
+    nbytes = _int(e, "nbytes", name, 0, 2**62)
+    want = math.prod(shape) * _DTYPES[dt].itemsize
+    if nbytes != want:
+        raise _Invalid(f"{name} declares {nbytes} bytes, its shape needs {want}")
+    if off % ALIGN:
+        raise _Invalid(f"{name} offset {off} is not aligned to {ALIGN}")
+    return off, nbytes
 
 
 def _read_data(path: Path, start: int, nbytes: int) -> np.ndarray:

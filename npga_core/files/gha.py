@@ -35,8 +35,19 @@ import numpy as np
 import torch
 
 from npga_core.errors import AvatarFileError
+from npga_core.files.pose import similarity_pose
 from npga_core.files.sequences import DEFAULT_FPS, ExpressionSequence
-from npga_core.files.untrusted import read_bytes, read_npz, regular_file
+from npga_core.files.untrusted import (
+    MAX_LOG_SCALE,
+    MAX_POSITION,
+    MAX_QUAT,
+    bounded_floats,
+    open_regular,
+    read_bytes,
+    read_npz,
+    regular_file,
+    shown,
+)
 from npga_core.model.avatar import Avatar
 from npga_core.model.cnn import CNNConfig, ScreenCNN
 from npga_core.model.dynamics import ConditionedMLP, Dynamics
@@ -48,6 +59,13 @@ HEAD = "gaussianhead_latest"
 SUPRES = "supres_latest"
 MAX_CHECKPOINT_BYTES = 4 * 2**30
 MAX_GAUSSIANS = 5_000_000
+#: Most records in a checkpoint archive; largest magnitude of any stored value (as the .npga reader's).
+MAX_RECORDS = 4096
+MAX_LANDMARKS = 1024
+MAX_PARAMETER = 1e8
+_INT_DTYPES = (torch.int8, torch.uint8, torch.int16, torch.int32, torch.int64, torch.bool)
+#: Range of each per-Gaussian tensor of the head checkpoint (positions in metres, log-scales, quaternions, logits).
+_RANGES = {"xyz": MAX_POSITION, "scales": MAX_LOG_SCALE, "rotation": MAX_QUAT, "opacity": 1e4}
 #: The values of GHA's own training configs (config/train_gaussianhead_N031.yaml, reenactment_N031.yaml); its
 #: config.py defaults (far 0.2, attributes_scale 0.05) are overridden by every config it ships.
 PUBLISHED = {"dist_threshold_near": 0.1, "dist_threshold_far": 0.25, "deform_scale": 0.3, "attributes_scale": 0.2}
@@ -65,12 +83,33 @@ def is_gha_folder(path: str | Path) -> bool:
     return p.is_dir() and (p / HEAD).exists()
 
 
+def _check_archive(path: Path, size: int) -> None:
+    """A `torch.save` zip archive (the format since torch 1.6, which GHA's checkpoints have) whose records are
+    stored as torch writes them: a compressed record could claim gigabytes that torch allocates before
+    inflating, and the older pickle-only format sizes its storages from the pickle."""
+    try:
+        with open_regular(path, "a torch checkpoint") as fh, zipfile.ZipFile(fh) as zf:
+            infos = zf.infolist()
+    except (zipfile.BadZipFile, OSError, ValueError, EOFError):
+        raise AvatarFileError(path, "not a torch.save zip archive (only torch's zip format, since torch 1.6, is "
+                              "read)") from None
+    if len(infos) > MAX_RECORDS:
+        raise AvatarFileError(path, f"has {len(infos)} records, more than the {MAX_RECORDS} allowed")
+    for info in infos:
+        if info.compress_type != zipfile.ZIP_STORED or info.file_size > size:
+            raise AvatarFileError(path, f"record {shown(info.filename)[:80]!r} claims {info.file_size} bytes "
+                                  f"compressed into {info.compress_size} (torch.save stores records uncompressed)")
+
+
 def load_state_dict(path: Path, what: str) -> dict[str, torch.Tensor]:
-    """A `torch.save`d state dict of tensors, read with `weights_only=True` (anything else refused, one line)."""
+    """A `torch.save`d state dict of tensors, read with `weights_only=True` (anything else refused, one line):
+    records stored uncompressed, no tensor claiming more elements than its data holds (an expanded view of a
+    few bytes), finite values within +-`MAX_PARAMETER`."""
     regular_file(path, what)
     size = path.stat().st_size
     if size > MAX_CHECKPOINT_BYTES:
         raise AvatarFileError(path, f"is {size} bytes, more than the {MAX_CHECKPOINT_BYTES} a checkpoint may have")
+    _check_archive(path, size)
     try:
         with warnings.catch_warnings():  # torch warns about pickle protocols it then refuses or reads anyway
             warnings.simplefilter("ignore")
@@ -90,9 +129,24 @@ def load_state_dict(path: Path, what: str) -> dict[str, torch.Tensor]:
                                               for k, v in state.items()):
         raise AvatarFileError(path, "is not a state dict of named tensors")
     for k, v in state.items():
-        if v.is_floating_point() and not bool(torch.isfinite(v).all()):
-            raise AvatarFileError(path, f"{k} has NaN/Inf values")
+        _check_tensor(path, k, v)
     return {k: v.detach().to(torch.float32) if v.is_floating_point() else v for k, v in state.items()}
+
+
+def _check_tensor(path: Path, key: str, v: torch.Tensor) -> None:
+    need = v.numel() * v.element_size()
+    if need > v.untyped_storage().nbytes():
+        raise AvatarFileError(path, f"{shown(key)} claims shape {tuple(v.shape)} ({need} bytes) from "
+                              f"{v.untyped_storage().nbytes()} bytes of data")
+    if v.is_complex() or not (v.is_floating_point() or v.dtype in _INT_DTYPES):
+        raise AvatarFileError(path, f"{shown(key)} has dtype {v.dtype}; real numbers are expected")
+    if v.is_floating_point() and v.numel():
+        if not bool(torch.isfinite(v).all()):
+            raise AvatarFileError(path, f"{shown(key)} has NaN/Inf values")
+        peak = float(v.abs().max())
+        if peak > MAX_PARAMETER:
+            raise AvatarFileError(path, f"{shown(key)} reaches {peak:.3g}, beyond the +-{MAX_PARAMETER:g} any "
+                                  "trained value has (it would overflow float32 in a forward pass)")
 
 
 def read_config(path: Path) -> dict[str, float]:
@@ -102,8 +156,10 @@ def read_config(path: Path) -> dict[str, float]:
     text = read_bytes(path, 1 << 20, "a GHA config")
     try:
         cfg = yaml.safe_load(text.decode("utf-8"))
-    except (yaml.YAMLError, UnicodeDecodeError) as e:
-        raise AvatarFileError(path, f"not a readable YAML config ({str(e).splitlines()[0][:120]})") from None
+    except (yaml.YAMLError, UnicodeDecodeError, ValueError) as e:  # ValueError: integers of > 4300 digits
+        raise AvatarFileError(path, f"not a readable YAML config ({(str(e).splitlines() or [''])[0][:120]})") from None
+    except RecursionError:
+        raise AvatarFileError(path, "not a readable YAML config (nested too deeply)") from None
     module = cfg.get("gaussianheadmodule") if isinstance(cfg, dict) else None
     if not isinstance(module, dict):
         raise AvatarFileError(path, "has no gaussianheadmodule section (not a GHA config)")
@@ -148,7 +204,9 @@ def _tensor(state: dict, key: str, shape: tuple, path: Path) -> torch.Tensor:
 def blend_weights(xyz: torch.Tensor, landmarks: torch.Tensor, near: float, far: float) -> torch.Tensor:
     """GHA's expression weight per Gaussian (float32, as generate() computes it from knn_points' squared
     distances): clamp((far - d2) / (far - near), 0, 1)."""
-    d2 = torch.cdist(xyz.double(), landmarks.double()).square().min(dim=1).values.float()
+    lm = landmarks.double()
+    d2 = torch.cat([torch.cdist(xyz[i:i + 65536].double(), lm).square().min(dim=1).values.float()
+                    for i in range(0, len(xyz), 65536)]) if len(xyz) else torch.zeros(0)
     return torch.clamp((far - d2) / (far - near), 0.0, 1.0)
 
 
@@ -201,8 +259,10 @@ def import_gha(folder: str | Path, config: str | Path | None = None, legacy_rota
     scales = _tensor(state, "scales", (n, 3), head_path)
     rotation = _tensor(state, "rotation", (n, 4), head_path)
     opacity = _tensor(state, "opacity", (n, 1), head_path)
-    if len(landmarks) == 0:
-        raise AvatarFileError(head_path, "has no neutral landmarks")
+    if not 0 < len(landmarks) <= MAX_LANDMARKS:
+        raise AvatarFileError(head_path, f"has {len(landmarks)} neutral landmarks (1..{MAX_LANDMARKS}; GHA's have 68)")
+    for key, limit in _RANGES.items():  # what the .npga reader and the renderer accept
+        bounded_floats(state[key].numpy(), head_path, key, limit)
     if bool((rotation.square().sum(1) < 1e-16).any()):
         raise AvatarFileError(head_path, "rotation has zero-length quaternions")
     dims = {name: _mlp_dims(state, f"{name}_mlp", head_path) for name in NETWORKS}
@@ -362,6 +422,7 @@ def read_gha_params(root: str | Path, fps: float = DEFAULT_FPS) -> ExpressionSeq
     if not np.isfinite(c).all() or not np.isfinite(scales).all() or np.abs(c).max() > 1e4:
         raise AvatarFileError(root, "has NaN, Inf or implausibly large values in exp_coeff or pose")
     p = np.stack(poses)
-    return ExpressionSequence(c.astype(np.float32), fps, root.name, rotation=p[:, :3], translation=p[:, 3:],
-                              scale=np.asarray(scales), frame_names=[f.parent.name for f in files],
+    pose = similarity_pose(p[:, :3], p[:, 3:], np.asarray(scales), len(p), root)  # checked, naming the folder
+    return ExpressionSequence(c.astype(np.float32), fps, root.name, pose=pose,
+                              frame_names=[f.parent.name for f in files],
                               pose_source="GHA params.npz: x' = s R(axis-angle) x + t, as GHA's generate()")

@@ -44,12 +44,15 @@ class _Bad(Exception):
     pass
 
 
-def _parse_header(fh) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]], int]:
+_Elements = list[tuple[str, int, list[tuple[str, str]]]]
+
+
+def _parse_header(fh) -> tuple[str, _Elements, int]:
     first = fh.readline(64)
     if first.rstrip(b"\r\n") != b"ply":
         raise _Bad("not a PLY file (first line is not 'ply')")
     fmt = None
-    elements: list[tuple[str, int, list[tuple[str, str]]]] = []
+    elements: _Elements = []
     total = len(first)
     while True:
         line = fh.readline(4096)
@@ -62,34 +65,40 @@ def _parse_header(fh) -> tuple[str, list[tuple[str, int, list[tuple[str, str]]]]
             words = line.decode("ascii").split()
         except UnicodeDecodeError:
             raise _Bad("header has non-ASCII bytes") from None
-        if not words or words[0] in ("comment", "obj_info"):
-            continue
-        if words[0] == "end_header":
+        if words and words[0] == "end_header":
             break
-        if words[0] == "format":
-            if len(words) != 3 or words[1] not in ("binary_little_endian", "binary_big_endian", "ascii"):
-                raise _Bad(f"unsupported format line {' '.join(words)!r}")
-            fmt = words[1]
-        elif words[0] == "element":
-            if len(words) != 3 or not re.fullmatch(r"\d{1,10}", words[2]):
-                raise _Bad(f"malformed element line {' '.join(words)!r}")
-            elements.append((words[1], int(words[2]), []))
-        elif words[0] == "property":
-            if len(words) < 3:
-                raise _Bad(f"malformed property line {' '.join(words)!r}")
-            if not elements:
-                raise _Bad("property before any element")
-            if words[1] == "list":
-                elements[-1][2].append((words[-1], "list"))
-            elif len(words) == 3 and words[1] in _PLY_TYPES:
-                elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
-            else:
-                raise _Bad(f"malformed property line {' '.join(words)!r}")
-        else:
-            raise _Bad(f"unknown header line {' '.join(words)!r}")
+        fmt = _header_line(words, elements) or fmt
     if fmt is None:
         raise _Bad("header has no format line")
     return fmt, elements, total
+
+
+def _header_line(words: list[str], elements: _Elements) -> str | None:
+    """Take one header line (its words) into `elements`; the format for a format line, else None."""
+    if not words or words[0] in ("comment", "obj_info"):
+        return None
+    if words[0] == "format":
+        if len(words) != 3 or words[1] not in ("binary_little_endian", "binary_big_endian", "ascii"):
+            raise _Bad(f"unsupported format line {' '.join(words)!r}")
+        return words[1]
+    if words[0] == "element":
+        if len(words) != 3 or not re.fullmatch(r"\d{1,10}", words[2]):
+            raise _Bad(f"malformed element line {' '.join(words)!r}")
+        elements.append((words[1], int(words[2]), []))
+    elif words[0] == "property":
+        if len(words) < 3:
+            raise _Bad(f"malformed property line {' '.join(words)!r}")
+        if not elements:
+            raise _Bad("property before any element")
+        if words[1] == "list":
+            elements[-1][2].append((words[-1], "list"))
+        elif len(words) == 3 and words[1] in _PLY_TYPES:
+            elements[-1][2].append((words[2], _PLY_TYPES[words[1]]))
+        else:
+            raise _Bad(f"malformed property line {' '.join(words)!r}")
+    else:
+        raise _Bad(f"unknown header line {' '.join(words)!r}")
+    return None
 
 
 def read_ply(path: str | Path) -> GaussianCloud:
@@ -113,38 +122,55 @@ def _read_ply(path: Path) -> GaussianCloud:
         raise _Bad("file is empty")
     with open_regular(path, "a PLY file") as fh:
         fmt, elements, header_len = _parse_header(fh)
-        if not elements or elements[0][0] != "vertex":
-            raise _Bad("the first element is not 'vertex'")
-        _, n, props = elements[0]
-        if n > MAX_VERTICES:
-            raise _Bad(f"claims {n} vertices, more than the {MAX_VERTICES} allowed")
-        if not props:
-            raise _Bad("the vertex element has no properties")
-        if any(t == "list" for _, t in props):
-            raise _Bad("vertex element has list properties; not a 3DGS file")
+        n, props = _vertex_element(elements)
         names = [p for p, _ in props]
-        if len(set(names)) != len(names):
-            raise _Bad("vertex element has duplicate property names")
-        if fmt == "ascii" and n == 0:
-            cols = {name: np.zeros(0) for name in names}
-        elif fmt == "ascii":
-            try:
-                rows = np.loadtxt(fh, dtype=np.float64, max_rows=n, ndmin=2)
-            except ValueError as e:
-                raise _Bad(f"malformed ASCII vertex data: {e}") from None
-            if rows.shape[0] != n or rows.shape[1] != len(props):
-                raise _Bad(f"truncated: {rows.shape[0]} of {n} vertex rows")
-            cols = {name: rows[:, i] for i, name in enumerate(names)}
-        else:
-            end = "<" if fmt == "binary_little_endian" else ">"
-            dt = np.dtype([(p, end + t) for p, t in props])
-            need = header_len + n * dt.itemsize
-            if size < need:
-                raise _Bad(f"truncated: {n} vertices need {need} bytes, the file has {size}")
-            data = np.fromfile(fh, dtype=dt, count=n)
-            if data.shape[0] != n:  # the file shrank while it was read
-                raise _Bad(f"truncated: {data.shape[0]} of {n} vertices could be read")
-            cols = {name: data[name] for name in names}
+        cols = (_ascii_columns(fh, n, names) if fmt == "ascii"
+                else _binary_columns(fh, fmt, n, props, size - header_len))
+    return _cloud(cols, names, n)
+
+
+def _vertex_element(elements: _Elements) -> tuple[int, list[tuple[str, str]]]:
+    """(count, properties) of the vertex element, checked: bounded count, named scalar properties."""
+    if not elements or elements[0][0] != "vertex":
+        raise _Bad("the first element is not 'vertex'")
+    _, n, props = elements[0]
+    if n > MAX_VERTICES:
+        raise _Bad(f"claims {n} vertices, more than the {MAX_VERTICES} allowed")
+    if not props:
+        raise _Bad("the vertex element has no properties")
+    if any(t == "list" for _, t in props):
+        raise _Bad("vertex element has list properties; not a 3DGS file")
+    names = [p for p, _ in props]
+    if len(set(names)) != len(names):
+        raise _Bad("vertex element has duplicate property names")
+    return n, props
+
+
+def _ascii_columns(fh, n: int, names: list[str]) -> dict[str, np.ndarray]:
+    if n == 0:
+        return {name: np.zeros(0) for name in names}
+    try:
+        rows = np.loadtxt(fh, dtype=np.float64, max_rows=n, ndmin=2)
+    except ValueError as e:
+        raise _Bad(f"malformed ASCII vertex data: {e}") from None
+    if rows.shape[0] != n or rows.shape[1] != len(names):
+        raise _Bad(f"truncated: {rows.shape[0]} of {n} vertex rows")
+    return {name: rows[:, i] for i, name in enumerate(names)}
+
+
+def _binary_columns(fh, fmt: str, n: int, props: list[tuple[str, str]], available: int) -> dict[str, np.ndarray]:
+    end = "<" if fmt == "binary_little_endian" else ">"
+    dt = np.dtype([(p, end + t) for p, t in props])
+    if available < n * dt.itemsize:
+        raise _Bad(f"truncated: {n} vertices need {n * dt.itemsize} bytes after the header, the file has {available}")
+    data = np.fromfile(fh, dtype=dt, count=n)
+    if data.shape[0] != n:  # the file shrank while it was read
+        raise _Bad(f"truncated: {data.shape[0]} of {n} vertices could be read")
+    return {name: data[name] for name, _ in props}
+
+
+def _cloud(cols: dict[str, np.ndarray], names: list[str], n: int) -> GaussianCloud:
+    """The cloud of the vertex columns (3DGS names), every attribute checked within the range it may have."""
     missing = [f for f in standard_fields(0) if f not in cols and f not in ("nx", "ny", "nz")]
     if missing:
         raise _Bad(f"missing 3DGS vertex properties: {', '.join(missing)}")

@@ -1,4 +1,5 @@
-"""Camera rigs: NeRSemble-style `camera_params.json` (`world_2_cam` per serial, shared `intrinsics`)."""
+"""Camera files: one camera (`Camera.to_json`'s layout, `render --camera`) and NeRSemble-style rigs
+(`camera_params.json`: `world_2_cam` per serial, shared `intrinsics`), read as untrusted JSON."""
 
 from __future__ import annotations
 
@@ -12,6 +13,17 @@ from npga_core.files.untrusted import image_size, json_dict, read_json, shown
 
 #: Most cameras read from one rig file.
 MAX_CAMERAS = 1024
+
+
+def load_camera(path: str | Path) -> Camera:
+    """One camera as `Camera.to_json` writes it, read as untrusted JSON (regular file, size, depth and number
+    bounds); AvatarFileError naming the file and the problem."""
+    path = Path(path)
+    data = read_json(path, what="a camera file")
+    try:
+        return Camera.from_dict(data, source="camera")
+    except ValueError as e:
+        raise AvatarFileError(path, str(e).removeprefix("camera: ")) from None
 
 
 def load_rig(path: str | Path) -> dict[str, Camera]:

@@ -380,8 +380,19 @@ def _bounded_int(text: str) -> int:
     return int(text)
 
 
-def parse_json(data: bytes | str, path: str | Path, max_depth: int = MAX_JSON_DEPTH) -> Any:
-    """Parse JSON text with a nesting bound, refusing NaN/Infinity, non-finite floats and huge integers."""
+def _unique_pairs(pairs: list) -> dict:
+    out = {}
+    for k, v in pairs:
+        if k in out:
+            raise ValueError(f"the key {shown(k)[:60]!r} appears twice")
+        out[k] = v
+    return out
+
+
+def parse_json(data: bytes | str, path: str | Path, max_depth: int = MAX_JSON_DEPTH, unique_keys: bool = False) -> Any:
+    """Parse JSON text with a nesting bound, refusing NaN/Infinity, non-finite floats and integers of more than
+    `MAX_INT_DIGITS` digits (Python's own limit, 4300, is a ValueError far from the file); with `unique_keys`, an
+    object naming a key twice is refused too."""
     raw = data.encode("utf-8") if isinstance(data, str) else data
     try:
         text = raw.decode("utf-8-sig")
@@ -392,7 +403,7 @@ def parse_json(data: bytes | str, path: str | Path, max_depth: int = MAX_JSON_DE
         raise AvatarFileError(path, f"JSON nested {depth} levels deep, more than the {max_depth} allowed")
     try:
         return json.loads(text, parse_constant=_reject_constant, parse_float=_finite_float,
-                          parse_int=_bounded_int)
+                          parse_int=_bounded_int, object_pairs_hook=_unique_pairs if unique_keys else None)
     except json.JSONDecodeError as e:
         raise AvatarFileError(path, f"not valid JSON ({e})") from None
     except (ValueError, RecursionError) as e:

@@ -162,8 +162,10 @@ def _render_view(renderer, avatar, cam, background, use_cnn: bool, shape: tuple[
     """The avatar's image for `cam` (through its CNN when `use_cnn`), at the capture image's `shape`."""
     render = renderer.render(cam, background)
     if use_cnn:
+        from npga_view.cli.signals import interruptible
         from npga_view.rendering.refinement import refine_frame
-        render = refine_frame(renderer, avatar.cnn, cam, background, rgb=render)
+        render = refine_frame(renderer, avatar.cnn, cam, background, rgb=render,
+                              runner=lambda x: interruptible(avatar.cnn.refine, x))
         if render.shape[:2] != shape[:2]:  # a CNN that upsamples: area-filtered to the capture's size
             import cv2
             render = cv2.resize(render, (shape[1], shape[0]), interpolation=cv2.INTER_AREA)

@@ -7,6 +7,9 @@ from pathlib import Path
 
 import numpy as np
 
+from npga_core.errors import shown
+from npga_view.cli.render import write_image
+
 COLOURS = [(66, 135, 245), (245, 105, 66), (60, 180, 75), (200, 60, 200), (240, 200, 40), (40, 200, 200)]
 
 
@@ -53,9 +56,8 @@ def write_report(out: Path, rows: list, worst: list, problems: list[str], notes:
 
 
 def _png(path: Path, rgb: np.ndarray) -> None:
-    import cv2
     img = np.clip(np.asarray(rgb) * 255.0 + 0.5, 0, 255).astype(np.uint8)
-    cv2.imwrite(str(path), img[..., ::-1])
+    write_image(path, np.ascontiguousarray(img[..., ::-1]))
 
 
 def write_triplet(out: Path, stem: str, image: np.ndarray, render: np.ndarray) -> None:
@@ -65,7 +67,7 @@ def write_triplet(out: Path, stem: str, image: np.ndarray, render: np.ndarray) -
     _png(out / f"{stem}_render.png", render)
     diff = np.abs(np.asarray(render, np.float64) - image).mean(axis=2)
     heat = cv2.applyColorMap(np.clip(diff / 0.25 * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_TURBO)
-    cv2.imwrite(str(out / f"{stem}_diff.png"), heat)
+    write_image(out / f"{stem}_diff.png", heat)
 
 
 def write_plot(path: Path, rows: list, width: int = 900, panel: int = 240) -> None:
@@ -102,8 +104,8 @@ def write_plot(path: Path, rows: list, width: int = 900, panel: int = 240) -> No
             for p in pts:
                 cv2.circle(canvas, p, 3, col, -1, cv2.LINE_AA)
             if m == 0:
-                cv2.putText(canvas, str(cam), (width - right - 150, y0 + 20 + 16 * k), cv2.FONT_HERSHEY_SIMPLEX,
+                cv2.putText(canvas, shown(str(cam)), (width - right - 150, y0 + 20 + 16 * k), cv2.FONT_HERSHEY_SIMPLEX,
                             0.45, col, 1, cv2.LINE_AA)
         cv2.putText(canvas, f"frames {frames[0]}..{frames[-1]}", (left, y0 + panel - 8),
                     cv2.FONT_HERSHEY_SIMPLEX, 0.4, (0, 0, 0), 1, cv2.LINE_AA)
-    cv2.imwrite(str(path), canvas[..., ::-1])
+    write_image(path, np.ascontiguousarray(canvas[..., ::-1]))

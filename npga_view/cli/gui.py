@@ -59,8 +59,11 @@ def run(args: argparse.Namespace) -> int:
     except ValueError as e:
         print(f"npga-view: error: {e}", file=sys.stderr)
         return 2
-    if args.bake_budget_mb <= 0:
-        print("npga-view: error: --bake-budget-mb must be positive", file=sys.stderr)
+    from npga_core.posing.smoothing import BAKE_BUDGET_MB
+
+    if not BAKE_BUDGET_MB[0] <= args.bake_budget_mb <= BAKE_BUDGET_MB[1]:  # NaN too (0 made a bake wait forever)
+        print(f"npga-view: error: --bake-budget-mb must be positive ({BAKE_BUDGET_MB[0]:g} to {BAKE_BUDGET_MB[1]:g} "
+              f"MB), got {args.bake_budget_mb:g}", file=sys.stderr)
         return 2
     if args.live_link is not None:
         from npga_view.controllers.live_link import parse_address

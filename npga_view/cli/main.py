@@ -85,10 +85,16 @@ def main(argv: list[str] | None = None) -> int:
     except AvatarFileError as e:
         print(f"npga-view: error: {e}", file=sys.stderr)
         return 2
-    except signals.Terminated as e:
-        return e.exit_code
-    except KeyboardInterrupt:
-        return 130
+    except (signals.Terminated, KeyboardInterrupt) as e:
+        signum = e.signum if isinstance(e, signals.Terminated) else 2
+        print(f"npga-view: {name}: stopped by {signals.name(signum)}", file=sys.stderr)
+        if signals.abandoned():  # a C call (the CNN) still runs on a helper thread: end without shutdown
+            import os
+
+            sys.stdout.flush()
+            sys.stderr.flush()
+            os._exit(128 + signum)
+        return 128 + signum
     finally:
         restore()
 

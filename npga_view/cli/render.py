@@ -141,12 +141,10 @@ def _camera(args, framing_points: np.ndarray) -> Camera:
         if value is not None and not 1 <= value <= 16384:
             raise RenderError(f"--{name} {value}: must be in 1..16384")
     if args.camera is not None:
-        from npga_core.files.untrusted import MAX_IMAGE_SIDE, read_json
+        from npga_core.files.rig import load_camera
+        from npga_core.files.untrusted import MAX_IMAGE_SIDE
 
-        try:  # untrusted JSON: regular file, size and depth bounds, image sides GL can allocate
-            cam = Camera.from_dict(read_json(args.camera, what="a camera file"), source=str(args.camera))
-        except ValueError as exc:
-            raise RenderError(str(exc)) from None
+        cam = load_camera(args.camera)  # untrusted JSON: regular file, size, depth and number bounds
         if max(cam.width, cam.height) > MAX_IMAGE_SIDE:
             raise RenderError(f"{args.camera}: image {cam.width}x{cam.height} is larger than {MAX_IMAGE_SIDE} "
                               "pixels on a side")
@@ -362,9 +360,11 @@ class _Frames:
         image = r.render(cam, self.background, self.mode)
         self._count(posed)
         if self.use_cnn:  # the window's Refiner takes the same path (npga_view/rendering/refinement.py)
+            from npga_view.cli.signals import interruptible
             from npga_view.rendering.refinement import refine_frame
 
-            image = refine_frame(r, self.avatar.cnn, cam, self.background, rgb=image)
+            cnn = self.avatar.cnn  # on a helper thread: SIGTERM/SIGINT end a CNN of minutes at once
+            image = refine_frame(r, cnn, cam, self.background, rgb=image, runner=lambda x: interruptible(cnn.refine, x))
         return image, to_display(image, self.mode)
 
     def _inspect(self, posed, code) -> tuple[np.ndarray, np.ndarray]:
@@ -436,8 +436,28 @@ def _write_image(path: Path, picture: np.ndarray) -> None:
     import cv2
 
     params = [cv2.IMWRITE_PNG_COMPRESSION, 9] if path.suffix.lower() == ".png" else []
-    if not cv2.imwrite(str(path), np.ascontiguousarray(picture[..., ::-1]), params):
-        raise RenderError(f"{path}: could not write the image")
+    write_image(path, np.ascontiguousarray(picture[..., ::-1]), params)
+
+
+def write_image(path: Path, bgr: np.ndarray, params: list[int] | None = None) -> None:
+    """An image encoded by OpenCV (by the file's suffix) and written atomically by Python: OpenCV's own writing
+    crashed the process (SIGSEGV) on a path it cannot encode, e.g. one with an undecodable byte."""
+    import cv2
+
+    from npga_core.errors import shown
+    from npga_core.files.atomic import atomic_write
+
+    ext = path.suffix.lower()
+    try:
+        ok, data = cv2.imencode(ext, bgr, params or []) if ext.isascii() and ext.isprintable() else (False, None)
+    except cv2.error:
+        ok = False
+    if not ok:
+        raise RenderError(f"{shown(path)}: cannot encode an image of type {shown(ext) or '(none)'}")
+    try:
+        atomic_write(path, lambda fh: fh.write(data.tobytes()))
+    except OSError as e:
+        raise RenderError(f"{shown(path)}: could not write the image ({e.strerror or e})") from None
 
 
 def _progress(done: int, total: int, started: float) -> None:

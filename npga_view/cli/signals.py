@@ -6,13 +6,23 @@ would be left behind (the worker also notices its parent is gone, see `npga_core
 parent's own cleanup, e.g. autosaving edits, would not run). With `install`, the first signal either asks the
 viewer to close (at the end of its frame: edits autosaved, worker stopped, shared memory unlinked) or raises
 `Terminated`, which unwinds like Ctrl+C; a second signal always raises.
+
+A handler only runs when the main thread is back in Python, so one long call into C (a convolution of a CNN
+whose header claims the largest costs allowed, minutes on a CPU) would hold a signal back for as long as it
+runs: `interruptible` runs such a call on a helper thread while the main thread waits in short slices, so
+the signal unwinds at once; the abandoned call is then ended with the process (`abandoned`, see
+`npga_view.cli.main`).
 """
 
 from __future__ import annotations
 
 import contextlib
 import signal
+import threading
 from collections.abc import Callable
+from typing import Any, TypeVar
+
+T = TypeVar("T")
 
 #: The signals handled: those of SIGTERM, SIGINT, SIGHUP, SIGBREAK (Windows console) this platform has.
 CLOSE_SIGNALS: tuple[int, ...] = tuple(getattr(signal, n) for n in ("SIGTERM", "SIGINT", "SIGHUP", "SIGBREAK")
@@ -56,3 +66,47 @@ def install(request_close: Callable[[int], None] | None = None) -> Callable[[], 
                 signal.signal(sig, old)
 
     return restore
+
+
+_abandoned: list[threading.Thread] = []
+
+
+def interruptible(func: Callable[..., T], *args: Any) -> T:
+    """`func(*args)` on a helper (daemon) thread while this thread waits in slices of 50 ms, so that a close
+    signal raises `Terminated` here at once even while `func` is inside one long C call. The result or the
+    exception of `func` is returned or raised here; after a signal the helper is abandoned (`abandoned()`)."""
+    box: dict[str, Any] = {}
+
+    def work() -> None:
+        try:
+            box["value"] = func(*args)
+        except BaseException as e:  # noqa: BLE001 - handed to the waiting thread
+            box["error"] = e
+
+    thread = threading.Thread(target=work, name="npga-interruptible", daemon=True)
+    thread.start()
+    try:
+        while thread.is_alive():
+            thread.join(0.05)
+    except BaseException:
+        if thread.is_alive():
+            _abandoned.append(thread)
+        raise
+    if "error" in box:
+        raise box["error"]
+    return box["value"]
+
+
+def abandoned() -> bool:
+    """True when a call `interruptible` ran is still running after a signal unwound past it (the process should
+    then end with `os._exit` once its own cleanup is done: the C call cannot be stopped, and interpreter
+    shutdown beside it is not safe)."""
+    return any(t.is_alive() for t in _abandoned)
+
+
+def name(signum: int) -> str:
+    """SIGTERM, SIGINT, ... for a signal number."""
+    try:
+        return signal.Signals(signum).name
+    except ValueError:
+        return f"signal {signum}"

@@ -18,6 +18,7 @@ from imgui_bundle import imgui
 
 from npga_core.editing.edits import EditSession, find_autosave, same_file
 from npga_core.editing.selection import COMBINE_MODES, attribute_names, attribute_values
+from npga_core.errors import shown
 from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import ViewerState
@@ -159,7 +160,7 @@ class EditPanel:
     def _range_tool(self, state: ViewerState, s: EditSession) -> None:
         names = attribute_names(s.avatar.cloud)
         self.attribute = min(self.attribute, len(names) - 1)
-        changed, self.attribute = imgui.combo("Attribute", self.attribute, names)
+        changed, self.attribute = imgui.combo("Attribute", self.attribute, [shown(n) for n in names])
         name = names[self.attribute]
         key = (id(s.avatar.cloud), s.version, name)
         if self.hist is None or self.hist[0] != key:
@@ -266,9 +267,9 @@ class EditPanel:
         done, undone = s.history.names()
         if imgui.begin_list_box("##history", imgui.ImVec2(-1, 110)):
             for i, name in enumerate(done):
-                imgui.selectable(f"{name}##done{i}", i == len(done) - 1)
+                imgui.selectable(f"{shown(name)}##done{i}", i == len(done) - 1)
             for name in undone:
-                imgui.text_disabled(f"  {name}")
+                imgui.text_disabled(f"  {shown(name)}")
             imgui.end_list_box()
 
     def _request_save(self, state: ViewerState, s: EditSession, path: str | None) -> None:

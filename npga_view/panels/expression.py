@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
+from npga_core.errors import shown
 from npga_view import actions as A
 from npga_view.panels.expression_pad import ExpressionPad
 from npga_view.panels.info import AppInfo, remember
@@ -48,7 +49,7 @@ class ExpressionPanel:
                 state.follow_sequence = False
         if imgui.tree_node("Presets"):
             for name in list(ex.named) + [p for p in state.presets if p not in ex.named]:
-                if imgui.selectable(name, False)[0]:
+                if imgui.selectable(shown(name), False)[0]:
                     state.actions.append(A.ApplyPreset(name))
             imgui.set_next_item_width(160)
             _, self.preset_name = imgui.input_text("##preset", self.preset_name)

@@ -18,6 +18,7 @@ from typing import Any
 
 from imgui_bundle import imgui
 
+from npga_core.errors import shown
 from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import ViewerState
@@ -124,7 +125,7 @@ class FilesPanel:
 
     def _browser(self, state: ViewerState) -> None:
         folder = Path(self.browse)
-        imgui.text_disabled(str(folder)[-60:])
+        imgui.text_disabled(shown(str(folder))[-60:])
         if imgui.begin_list_box("##browser", imgui.ImVec2(-1, 140)):
             if imgui.selectable("..", False)[0]:
                 self.browse = str(folder.parent)
@@ -137,12 +138,12 @@ class FilesPanel:
                     continue
                 if p.is_dir():
                     is_track = (p / "00000" / "z_exp.npy").is_file()
-                    if imgui.selectable(f"[{'seq' if is_track else 'dir'}] {p.name}", False)[0]:
+                    if imgui.selectable(f"[{'seq' if is_track else 'dir'}] {shown(p.name)}", False)[0]:
                         if is_track:
                             state.actions.append(A.OpenSequence(str(p)))
                         else:
                             self.browse = str(p)
-                elif p.suffix in AVATAR_EXT + SEQUENCE_EXT and imgui.selectable(p.name, False)[0]:
+                elif p.suffix in AVATAR_EXT + SEQUENCE_EXT and imgui.selectable(shown(p.name), False)[0]:
                     state.actions.append(open_action(str(p)))
             imgui.end_list_box()
 
@@ -150,9 +151,9 @@ class FilesPanel:
         if not imgui.collapsing_header("Files", imgui.TreeNodeFlags_.default_open):
             return
         a = info.avatar
-        imgui.text_wrapped(f"Avatar: {Path(state.avatar_path).name if state.avatar_path else '-'}"
+        imgui.text_wrapped(f"Avatar: {shown(Path(state.avatar_path).name) if state.avatar_path else '-'}"
                            + (f" ({len(a):,} Gaussians)" if a is not None else ""))
-        imgui.text_wrapped(f"Sequence: {Path(state.sequence_path).name if state.sequence_path else '-'}")
+        imgui.text_wrapped(f"Sequence: {shown(Path(state.sequence_path).name) if state.sequence_path else '-'}")
         imgui.set_next_item_width(-1)
         _, self.path = imgui.input_text("##path", self.path)
         remember(info, "path_input")
@@ -174,7 +175,7 @@ class FilesPanel:
             imgui.tree_pop()
         if state.recent and imgui.tree_node("Recent"):
             for p in state.recent:
-                if imgui.selectable(p if len(p) < 50 else "..." + p[-47:], False)[0]:
+                if imgui.selectable(shown(p if len(p) < 50 else "..." + p[-47:]), False)[0]:
                     state.actions.append(open_action(p))
             imgui.tree_pop()
         imgui.text_disabled("Tip: drop files on the window.")

@@ -24,6 +24,7 @@ from __future__ import annotations
 import numpy as np
 from imgui_bundle import imgui
 
+from npga_core.errors import shown
 from npga_core.inspection.colouring import COLOUR_MAPS, Colouring, colour_map
 from npga_core.inspection.inspector import (
     CLIP_MODES,
@@ -53,7 +54,7 @@ G_BLOCKS = ("position", "rotation", "scale", "opacity", "sh", "latent")
 
 def _combo(label: str, value: str, choices: tuple[str, ...] | list[str], labels=None) -> str:
     idx = choices.index(value) if value in choices else 0
-    changed, idx = imgui.combo(label, idx, list(labels or choices))
+    changed, idx = imgui.combo(label, idx, [shown(x) for x in labels or choices])
     return choices[idx] if changed else value
 
 
@@ -146,9 +147,9 @@ def _mode(s: InspectSettings, a) -> None:
 
 def _legend(c: Colouring, s: InspectSettings) -> None:
     imgui.push_text_wrap_pos(0)
-    imgui.text(c.label)
+    imgui.text(shown(c.label))
     for note in c.notes:
-        imgui.text_disabled(note)
+        imgui.text_disabled(shown(note))
     imgui.pop_text_wrap_pos()
     if c.cmap is None:
         return
@@ -185,7 +186,7 @@ def _counts(ii: InspectInfo) -> None:
     drawn = "-" if c.drawn is None else f"{c.drawn:,}"
     imgui.text(f"Gaussians: {c.total:,} total, {c.in_frustum:,} in view, {drawn} drawn")
     for name, total, frustum, d in c.parts:
-        imgui.text_disabled(f"  {name}: {total:,} / {frustum:,} / {'-' if d is None else f'{d:,}'}")
+        imgui.text_disabled(f"  {shown(name)}: {total:,} / {frustum:,} / {'-' if d is None else f'{d:,}'}")
 
 
 # --- histogram, clipping -----------------------------------------------------------------------------------------
@@ -282,7 +283,7 @@ def _vec(v, limit: int = 12) -> str:
 
 def _record(rec: dict, s: InspectSettings) -> None:
     if "part" in rec:
-        imgui.text(f"part: {rec['part']}")
+        imgui.text(f"part: {shown(rec['part'])}")
     flags = imgui.TableFlags_.borders_inner_v | imgui.TableFlags_.row_bg
     if imgui.begin_table("attrs", 2, flags):
         imgui.table_setup_column("", imgui.TableColumnFlags_.width_fixed)
@@ -303,7 +304,7 @@ def _record(rec: dict, s: InspectSettings) -> None:
         imgui.text(f"h: {_vec(rec['latent'])}")
         imgui.text(f"h posed: {_vec(rec['posed_latent'])}")
     for name, value in rec["offsets"].items():
-        imgui.text(f"{name} offset: {_vec(value)}")
+        imgui.text(f"{shown(name)} offset: {_vec(value)}")
     imgui.pop_text_wrap_pos()
     imgui.text(f"{len(rec['neighbours'])} nearest neighbours (canonical distance):")
     for j, dist in rec["neighbours"]:

@@ -14,6 +14,7 @@ from __future__ import annotations
 from imgui_bundle import imgui
 
 from npga_core.editing.keyframes import INTERPOLATIONS, KeyframeTimeline
+from npga_core.errors import shown
 from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import ViewerState
@@ -92,7 +93,7 @@ class KeyframesPanel:
                 self.preset = min(self.preset, len(names) - 1)
                 imgui.same_line()
                 imgui.set_next_item_width(120)
-                _, self.preset = imgui.combo("##kfpreset", self.preset, names)
+                _, self.preset = imgui.combo("##kfpreset", self.preset, [shown(n) for n in names])
                 preset = names[self.preset]
             imgui.same_line()
             imgui.set_next_item_width(80)
@@ -143,7 +144,7 @@ class KeyframesPanel:
                 state.actions.append(A.RemoveKey(track, i))
             if key.label:
                 imgui.same_line()
-                imgui.text_disabled(key.label)
+                imgui.text_disabled(shown(key.label))
             if changes:
                 state.actions.append(A.UpdateKey(track, i, changes))
             imgui.pop_id()

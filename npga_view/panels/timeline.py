@@ -6,6 +6,7 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
+from npga_core.errors import shown
 from npga_core.posing.headpose import has_head_pose, pose_description
 from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
@@ -107,7 +108,7 @@ def _bake(state: ViewerState, info: AppInfo) -> None:
         imgui.text_disabled("Not baked: playback is live." if tl.baked else "Not baked.")
         return
     if what == "error":
-        imgui.text_colored(imgui.ImVec4(1.0, 0.4, 0.4, 1.0), f"bake failed: {st.error}")
+        imgui.text_colored(imgui.ImVec4(1.0, 0.4, 0.4, 1.0), f"bake failed: {shown(st.error)}")
         return
     label = f"{st.done}/{st.stored} frames"
     imgui.progress_bar(st.fraction, imgui.ImVec2(-1, 0), label)
@@ -121,7 +122,7 @@ def _bake(state: ViewerState, info: AppInfo) -> None:
     elif what == "baking" and tl.baked:
         imgui.text_disabled("Frames not baked yet are posed exactly as they come.")
     if st.error:
-        imgui.text_colored(imgui.ImVec4(1.0, 0.8, 0.3, 1.0), st.error)
+        imgui.text_colored(imgui.ImVec4(1.0, 0.8, 0.3, 1.0), shown(st.error))
 
 
 class TimelinePanel:

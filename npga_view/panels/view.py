@@ -5,6 +5,7 @@ from __future__ import annotations
 
 from imgui_bundle import imgui
 
+from npga_core.errors import shown
 from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import RENDER_MODES, ViewerState
@@ -43,7 +44,7 @@ class ViewPanel:
         _, cam.roll = imgui.slider_float("Roll", cam.roll, -180.0, 180.0, "%.0f deg")
         if info.rig_names:
             labels = ["orbit camera"] + info.rig_names
-            changed, idx = imgui.combo("Rig camera", state.rig_index + 1, labels)
+            changed, idx = imgui.combo("Rig camera", state.rig_index + 1, [shown(x) for x in labels])
             if changed:
                 state.rig_index = idx - 1
         imgui.set_next_item_width(200)
@@ -78,7 +79,7 @@ class ViewPanel:
         if imgui.button("Stop recording" if info.recording else "Record MP4"):
             state.actions.append(A.ToggleRecording())
         if info.last_screenshot:
-            imgui.text_disabled(f"saved {info.last_screenshot[-48:]}")
+            imgui.text_disabled(f"saved {shown(info.last_screenshot)[-48:]}")
         imgui.set_next_item_width(200)
         _, self.session = imgui.input_text("##session", self.session)
         imgui.same_line()
