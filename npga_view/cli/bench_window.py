@@ -185,7 +185,7 @@ def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, sec
             done = w.until(lambda: _exact(app), 120)
             exact.append(None if done is None else time.perf_counter() - t0)
             if cnn:
-                done = w.until(lambda: _exact(app) and app.info.shown == "refined", 120)
+                done = w.until(lambda: _exact(app) and app.refining.shown == "refined", 120)
                 refined.append(None if done is None else time.perf_counter() - t0)
         out["slider_changed_s"] = _stats(first)
         out["slider_exact_s"] = _stats(exact)

@@ -33,7 +33,8 @@ class RefineController:
         self.renderer = renderer
         self.draws = draws
         self.state = state
-        self.info = info
+        self.info = info  # the display snapshot this controller writes what the view shows into
+        self.shown = "splats"  # "splats", "refined", "latent" or "splats (refining)"
         self._key: tuple | None = None  # what the uploaded refined/latent image shows
         self._latent_for: tuple | None = None  # what the latent image being drawn in slices is for
         self._latent: np.ndarray | None = None  # that latent image once finished
@@ -45,17 +46,17 @@ class RefineController:
 
     def present(self, camera: Camera, framebuffer, viewport: tuple[int, int, int, int]) -> bool:
         """Present the refined or latent image of the view if it is ready (True), else leave it to the splats."""
-        st, info = self.state, self.info
+        st = self.state
         what = self.refiner.shows(st.use_cnn, st.latent_view, st.mode)
         if what is None:
             self.refiner.cancel()
             self._drop_latent()
-            info.shown = "splats"
+            self._set_shown("splats")
             return False
         bg = tuple(float(v) for v in st.background)
         key = (self.draws.shown_target, what, st.latent_view, st.latent_channel, bg)
         if self.renderer.latent_dim != self.refiner.latent_dim:  # nothing uploaded yet (or not this avatar's)
-            info.shown = "splats"
+            self._set_shown("splats")
             return False
         if not self.draws.settled:  # the view changed: a refinement still running is of a view left behind
             self.refiner.cancel()
@@ -64,10 +65,10 @@ class RefineController:
         else:
             ready = key == self._key or self._compute(key, what, camera, bg)
         if not ready:
-            info.shown = "splats (refining)"
+            self._set_shown("splats (refining)")
             return False
         self.refiner.present(framebuffer, viewport, flip_y=True)
-        info.shown = what
+        self._set_shown(what)
         return True
 
     def _front(self) -> np.ndarray:
@@ -80,7 +81,12 @@ class RefineController:
     def complete(self) -> bool:
         """The image on screen is what the state asks for: the refined or latent image once it is ready, or the
         splats where nothing is refined (scripted screenshots wait for this)."""
-        return self.info.shown != "splats (refining)"
+        return self.shown != "splats (refining)"
+
+    def _set_shown(self, what: str) -> None:
+        """What the view shows now (its own state; copied to `AppInfo.shown` for the panels)."""
+        self.shown = what
+        self.info.shown = what
 
     def _drop_latent(self) -> None:
         if self._latent_for is not None:

@@ -1,4 +1,6 @@
-"""`AppInfo`: what the app shows the panels each frame (read-only for them)."""
+"""`AppInfo`: what the panels show, a display snapshot the app copies each frame from the controllers' own state
+(`ViewerApp._publish_info`, `PoseController.publish`, `EditController.publish`) and from its drawing figures.
+Read-only for the panels; nothing decides from it (decisions read the controllers and `ViewerState`)."""
 
 from __future__ import annotations
 
