@@ -32,19 +32,38 @@ def display():
 
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory):
+    """Frames 0 and 3 of two cameras, each frame of its own expression (its code in codes.npy beside it)."""
+    import cv2
+
     from npga_core import load_avatar
     demo = load_avatar("demo")
-    code = demo.neutral_code() + 0.5 * demo.expression.std[0] * demo.expression.basis[0]  # not the window's
-    p = demo.pose(code)
+    ex = demo.expression
+    codes = {0: ex.named["smile"], 3: ex.named["surprise"]}  # neither is the window's own code
     base = frame_points(demo.cloud.means, W, H)
     side = base.world_to_camera.copy()
     side[0, 3] += 0.02
     cams = {SERIALS[0]: Camera(side, base.fx, base.fy, base.cx, base.cy, W, H), SERIALS[1]: base}
-    images = {s: (o["rgb"], o["alpha"]) for s, cam in cams.items()
-              for o in [rasterize(p.means, p.quats, p.scales, p.opacities, p.sh, cam, (1.0, 1.0, 1.0))]}
     root = tmp_path_factory.mktemp("capture")
-    _write_capture(root, cams, images)
-    np.save(root.parent / "codes.npy", np.repeat(code[None].astype(np.float32), 4, axis=0))  # frames 0..3
+    rgb = {}
+    for t, code in codes.items():
+        p = demo.pose(code)
+        images = {s: (o["rgb"], o["alpha"]) for s, cam in cams.items()
+                  for o in [rasterize(p.means, p.quats, p.scales, p.opacities, p.sh, cam, (1.0, 1.0, 1.0))]}
+        if t == 0:
+            _write_capture(root, cams, images)  # (frames 0 and 3 of this expression; frame 3 rewritten below)
+        else:
+            rng = np.random.default_rng(3)
+            folder = root / "timesteps" / f"frame_{t:05d}"
+            for s, (im, alpha) in images.items():
+                noisy = np.clip(im + rng.normal(0, 0.01, im.shape), 0, 1)
+                cv2.imwrite(str(folder / "images" / f"cam_{s}.png"), (noisy * 255 + 0.5).astype(np.uint8)[..., ::-1])
+                cv2.imwrite(str(folder / "alpha_map" / f"cam_{s}.png"), (alpha * 255 + 0.5).astype(np.uint8))
+        rgb[t] = images[SERIALS[0]][0]
+    # the two frames differ: scoring frame 3 with frame 0's code would fall below the aligned 30 dB
+    assert -10 * np.log10(np.mean((rgb[0] - rgb[3]) ** 2)) < 28.0
+    table = np.repeat(codes[0][None].astype(np.float32), 4, axis=0)
+    table[3] = codes[3]
+    np.save(root.parent / "codes.npy", table)  # rows are frames 0..3
     return root
 
 
@@ -103,10 +122,12 @@ def test_compare_with_a_capture_wipe_blend_difference_and_stepping(window, captu
     app.screenshot(str(tmp_path / "difference.png"))
     app.screenshot(str(Path(__file__).resolve().parent.parent / "out" / "compare_difference.png"))
     assert dark > 0.97, dark  # aligned: dark nearly everywhere
-    for _ in range(2):  # stepping the camera keeps render and capture aligned
-        app.state.actions.append(C.StepCapture(cameras=1))
-        _ready(app)
-        assert app.info.compare.scores["a"].psnr > 30.0, app.info.compare.camera
+    for step in (C.StepCapture(cameras=1), C.StepCapture(frames=1), C.StepCapture(cameras=1)):
+        app.state.actions.append(step)  # stepping cameras and frames keeps render and capture aligned,
+        _ready(app)  # each frame posed with its own code
+        info = app.info.compare
+        assert info.scores["a"].psnr > 30.0, (info.frame, info.camera)
+    assert info.frame == 3
     # wipe: the avatar left of the divider, the capture right of it (t=1: all avatar, t=0: all capture)
     shown = {}
     for t in (1.0, 0.0, 0.5):

@@ -58,6 +58,7 @@ class CompareSources:
         self.frame_index = 0
         self.camera_index = 0
         self.mask = "auto"
+        self._posed: dict[str, tuple[tuple, PosedGaussians]] = {}  # role -> (avatar, version, code), its pose
 
     # --- opening --------------------------------------------------------------------------------------
     def open_capture(self, path: str | Path, sequence: str | Path | None = None) -> None:
@@ -162,7 +163,11 @@ class CompareSources:
                     return Prepared(capture, {}, job.avatars,
                                     f"avatar {role.upper()} takes {avatar.code_dim}-D codes, the sequence has "
                                     f"{len(code)}-D")
-                posed[role] = avatar.pose(code)
+                key = (id(avatar), avatar.version, None if code is None else np.asarray(code, np.float32).tobytes())
+                cached = self._posed.get(role)
+                if cached is None or cached[0] != key:  # another camera of the same frame: the same pose
+                    cached = self._posed[role] = (key, avatar.pose(code))
+                posed[role] = cached[1]
         except (AvatarFileError, ValueError) as e:
             return Prepared(capture, {}, job.avatars, str(e))
         return Prepared(capture, posed, job.avatars)

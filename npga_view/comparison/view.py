@@ -29,6 +29,7 @@ from npga_core.camera.cameras import Camera
 from npga_core.evaluation.compare import CompareSettings, compose
 from npga_core.evaluation.metrics import Scores, composite_background, score
 from npga_core.model.avatar import Avatar
+from npga_core.model.gaussians import PosedGaussians
 from npga_view.comparison.sources import CompareSources, Job, Prepared
 from npga_view.rendering.factory import create_renderer
 from npga_view.rendering.refinement import Refiner
@@ -70,6 +71,7 @@ class CompareView:
         self._device = device
         self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="npga-compare")
         self._renderers: dict[str, SplatRenderer] = {}
+        self._uploaded: dict[str, PosedGaussians] = {}  # what each renderer holds (not uploaded again)
         self._refiners: dict[str, Refiner] = {}
         self._presenter: Refiner | None = None
         self._job: Job | None = None
@@ -173,7 +175,9 @@ class CompareView:
             r = self._renderer(role, job.camera)
             avatar = prep.avatars[role]
             if d.stage == "pose":
-                r.set_gaussians(prep.posed[role])
+                if self._uploaded.get(role) is not prep.posed[role]:
+                    r.set_gaussians(prep.posed[role])
+                    self._uploaded[role] = prep.posed[role]
                 r.begin_draw(job.camera)
                 d.stage = "splats"
             if d.stage == "splats":
@@ -302,7 +306,7 @@ class CompareView:
             f.release()
         if self._presenter is not None:
             self._presenter.release()
-        self._renderers, self._refiners, self._presenter = {}, {}, None
+        self._renderers, self._refiners, self._presenter, self._uploaded = {}, {}, None, {}
 
 
 def _read_front(ctx: moderngl.Context, renderer: SplatRenderer, camera: Camera, background) -> np.ndarray:
