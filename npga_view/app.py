@@ -13,7 +13,6 @@ from __future__ import annotations
 import os
 import sys
 import time
-from pathlib import Path
 
 import numpy as np
 
@@ -108,7 +107,8 @@ class ViewerApp:
                                     keyframe_code=self.live.code_or(self.edits.keyframe_code),
                                     playback_previews=not self.legacy)
         self.recorder = Recorder(lambda: self.read_window(viewport_only=True))
-        self.actions = ActionController(self, self.poses, self.bakes, self._toggle_recording)
+        self.actions = ActionController(self, self.poses, self.bakes,
+                                        lambda: self.recorder.toggle_reported(self._viewport()[2:], self.state.report))
         self.actions.load_presets()
         self.view_camera = ViewCamera(self.state, self._viewport, self.edits, lambda: self.actions.rig,
                                       lambda: self.sequence, self.poses.frame_on_screen, self.live.head_transform)
@@ -349,23 +349,9 @@ class ViewerApp:
 
     def screenshot(self, path: str, viewport_only: bool = False) -> str:
         """Save the window (panels included) or only the splat view as PNG."""
-        import cv2
-
-        img = self.read_window(viewport_only)
-        Path(path).parent.mkdir(parents=True, exist_ok=True)
-        if not cv2.imwrite(str(path), img[:, :, ::-1]):
-            raise OSError(f"{path}: could not write the PNG")
-        self.info.last_screenshot = str(path)  # (display only)
-        return str(path)
-
-    def _toggle_recording(self) -> None:
-        try:
-            self.recorder.toggle(self._viewport()[2:])
-        except (OSError, ValueError) as e:
-            self.state.report(f"Record MP4: {e}")
-        if self.recorder.error:
-            self.state.report(f"Record MP4: {self.recorder.error}")
-            self.recorder.error = None
+        assert self.window is not None
+        self.info.last_screenshot = self.window.screenshot(path, viewport_only)  # (display only)
+        return self.info.last_screenshot
 
     # ------------------------------------------------------------------------------------------ loop
     def run(self, screenshot: str | None = None, quit_after_frames: int | None = None) -> int:

@@ -11,6 +11,7 @@ from __future__ import annotations
 import ctypes
 import warnings
 from collections.abc import Callable
+from pathlib import Path
 from typing import Any
 
 import moderngl
@@ -121,6 +122,17 @@ class Window:
         vp = self.viewport() if viewport_only else (0, 0, fw, fh)
         data = self.ctx.screen.read(viewport=vp, components=3, alignment=1)
         return np.frombuffer(data, np.uint8).reshape(vp[3], vp[2], 3)[::-1].copy()
+
+    def screenshot(self, path: str, viewport_only: bool = False) -> str:
+        """Save the window or the splat view as an image (PNG by the name); OSError naming the file."""
+        from npga_view.cli.render import RenderError, write_image
+
+        Path(path).parent.mkdir(parents=True, exist_ok=True)
+        try:  # encoded by OpenCV, written by Python: OpenCV's own writing crashes on undecodable names
+            write_image(Path(path), self.read(viewport_only)[:, :, ::-1])
+        except RenderError as e:
+            raise OSError(str(e)) from None
+        return str(path)
 
     def close(self) -> None:
         """Shut imgui down and destroy the window (safe to call twice)."""

@@ -20,9 +20,8 @@ NOT_OURS = {
     "npga_core/assets": "where assets/ is installed (pyproject's package-dir)",
     "npga_core/assets/demo/LICENSE.ict-facekit": "the demo licence inside the wheel (tests/test_package.py)",
 }
-#: TEMPORARY (#26): stale names in files owned by another branch (renderer.py is being split there)
-ELSEWHERE = {("npga_view/rendering/renderer.py", "npga_core/inspect.py"),
-             ("npga_view/rendering/renderer.py", "npga_view/lines.py")}
+#: (file, path) pairs where a path names something outside this repository (none)
+ELSEWHERE: set[tuple[str, str]] = set()
 
 
 def _tracked() -> list[str]:

@@ -107,26 +107,7 @@ class CNNConfig:
             raise ValueError(f"CNN input {self.input!r} is not 'rgb+latent' or 'latent'")
         channels = None
         for i, o in enumerate(ops):
-            kind = o.get("op")
-            if kind == "conv":
-                if not 1 <= o["kernel"] <= MAX_KERNEL or o["kernel"] % 2 == 0:
-                    raise ValueError(f"CNN layer {i} kernel {o['kernel']} must be odd and in 1..{MAX_KERNEL}")
-                if not (1 <= o["in"] <= MAX_CHANNELS and 1 <= o["out"] <= MAX_CHANNELS):
-                    raise ValueError(f"CNN layer {i} has {o['in']} -> {o['out']} channels (at most {MAX_CHANNELS})")
-                if channels is not None and o["in"] != channels:
-                    raise ValueError(f"CNN layer {i} takes {o['in']} channels, the layer before gives {channels}")
-                channels = o["out"]
-            elif kind == "act":
-                if o["name"] not in ACTIVATIONS:
-                    raise ValueError(f"CNN layer {i} has unknown activation {o['name']!r}")
-            elif kind == "upsample":
-                if not 2 <= o["factor"] <= MAX_UPSAMPLE or o.get("mode") not in ("bilinear", "nearest"):
-                    raise ValueError(f"CNN upsampling {i} must be bilinear or nearest by 2..{MAX_UPSAMPLE}")
-            elif kind == "instance_norm":
-                if not 0.0 < o.get("eps", 1e-5) < 1.0:
-                    raise ValueError(f"CNN instance norm {i} eps outside (0, 1)")
-            else:
-                raise ValueError(f"CNN operation {i} is {kind!r} (conv, act, instance_norm, upsample)")
+            channels = _check_op(i, o, channels)
         if self.upsample > MAX_UPSAMPLE:
             raise ValueError(f"CNN upsamples by {self.upsample} in all (at most {MAX_UPSAMPLE})")
         if self.macs_per_pixel() > MAX_MACS_PER_PIXEL:
@@ -308,3 +289,28 @@ def run_cnn(module: nn.Module, image: np.ndarray, device: torch.device) -> np.nd
     x = x.to(device).contiguous(memory_format=torch.channels_last)
     out = module(x)[0].clamp_(0.0, 1.0).permute(1, 2, 0)
     return out.contiguous().cpu().numpy()
+
+
+def _check_op(i: int, o: dict, channels: int | None) -> int | None:
+    """Check operation `i` of a CNN against the bounds and the channels before it; the channels after it."""
+    kind = o.get("op")
+    if kind == "conv":
+        if not 1 <= o["kernel"] <= MAX_KERNEL or o["kernel"] % 2 == 0:
+            raise ValueError(f"CNN layer {i} kernel {o['kernel']} must be odd and in 1..{MAX_KERNEL}")
+        if not (1 <= o["in"] <= MAX_CHANNELS and 1 <= o["out"] <= MAX_CHANNELS):
+            raise ValueError(f"CNN layer {i} has {o['in']} -> {o['out']} channels (at most {MAX_CHANNELS})")
+        if channels is not None and o["in"] != channels:
+            raise ValueError(f"CNN layer {i} takes {o['in']} channels, the layer before gives {channels}")
+        return o["out"]
+    if kind == "act":
+        if o["name"] not in ACTIVATIONS:
+            raise ValueError(f"CNN layer {i} has unknown activation {o['name']!r}")
+    elif kind == "upsample":
+        if not 2 <= o["factor"] <= MAX_UPSAMPLE or o.get("mode") not in ("bilinear", "nearest"):
+            raise ValueError(f"CNN upsampling {i} must be bilinear or nearest by 2..{MAX_UPSAMPLE}")
+    elif kind == "instance_norm":
+        if not 0.0 < o.get("eps", 1e-5) < 1.0:
+            raise ValueError(f"CNN instance norm {i} eps outside (0, 1)")
+    else:
+        raise ValueError(f"CNN operation {i} is {kind!r} (conv, act, instance_norm, upsample)")
+    return channels

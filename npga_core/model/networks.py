@@ -279,6 +279,10 @@ class MLPConfig:
             raise ValueError(f"inputs {kinds} must be distinct and not empty")
         if "condition" in kinds and self.condition_dim == 0:
             raise ValueError("a condition input needs condition_dim > 0")
+        self._validate_outputs()
+
+    def _validate_outputs(self) -> None:
+        """The output blocks and the routes of their columns."""
         seen = set()
         for name, width in self.outputs:
             if name not in ATTRIBUTES:

@@ -47,6 +47,16 @@ class Recorder:
     def recording(self) -> bool:
         return self._writer is not None
 
+    def toggle_reported(self, size: tuple[int, int], report) -> None:
+        """`toggle`, its errors (and the encoder's) as one line each to `report` (the window's error list)."""
+        try:
+            self.toggle(size)
+        except (OSError, ValueError) as e:
+            report(f"Record MP4: {e}")
+        if self.error:
+            report(f"Record MP4: {self.error}")
+            self.error = None
+
     def toggle(self, size: tuple[int, int]) -> bool:
         """Start recording a view of `size` (w, h) or stop the recording; returns whether it now records.
 

@@ -36,7 +36,7 @@ image stays there meanwhile). `draw` is both with no budget.
 Camera-only changes re-sort, re-run the pre-pass and redraw; the Gaussian attributes are uploaded only by
 `set_gaussians`.
 
-Inspection (see npga_core/inspect.py for the colour modes, which only replace the uploaded SH):
+Inspection (see npga_core/inspection/colouring.py for the colour modes, which only replace the uploaded SH):
 
 - `style`: "splats" (the above), "points" (opaque discs of `point_px` radius) or "ellipsoids" (the 1-sigma
   ellipse of the projected covariance, opaque and shaded); the two geometry styles skip Gaussians with opacity
@@ -46,7 +46,7 @@ Inspection (see npga_core/inspect.py for the colour modes, which only replace th
 - `pick(camera, x, y)` / `render_ids(camera)`: an id pass over the same sorted quads into an R32UI target,
   without blending, so a pixel keeps the front-most Gaussian whose alpha there reaches a threshold.
 - `set_lines(positions, edges, colours)`: segments (kNN edges) drawn over the splats in "rgb" mode
-  (`npga_view/lines.py`).
+  (`npga_view/rendering/lines.py`).
 """
 
 from __future__ import annotations
