@@ -12,7 +12,7 @@ import numpy as np
 import pytest
 
 from npga_core.camera.cameras import Camera, frame_points
-from npga_view.comparison import actions as C
+from npga_view import actions as C
 from tests.xvfb import xvfb_display
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

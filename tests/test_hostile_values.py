@@ -130,7 +130,7 @@ def _cpu_seconds(pid: int) -> float:
 def test_sigterm_ends_a_render_inside_a_cnn_of_minutes(tmp_path):
     """A valid avatar whose CNN's costs are within the header bounds but take minutes on a CPU (a 15x15
     convolution of 192 -> 192 channels at 800x600, one call into C of ~3 CPU-minutes): SIGTERM while the render
-    is inside it ends the render at once (the CNN runs on a helper thread, npga_view/cli/signals.interruptible)
+    is inside it ends the render at once (the CNN runs on a helper thread, `interruptible` in npga_view/cli/signals.py)
     with one line, exit 128 + 15 and nothing written. Before, the signal waited for the convolution to end."""
     import signal
     import time

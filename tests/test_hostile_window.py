@@ -10,6 +10,7 @@ import pytest
 
 from npga_core.files.checkpoint import save_avatar
 from npga_core.model.synthetic import make_synthetic_avatar
+from npga_view import actions as A
 
 from . import hostile_corpus as hc
 from .xvfb import xvfb_display
@@ -82,7 +83,6 @@ def test_window_shows_names_of_any_encoding(display, tmp_path, monkeypatch):
     from imgui_bundle import imgui
 
     from npga_view.app import ViewerApp
-    from npga_view.panels import files as files_panel
 
     monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
     monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
@@ -110,8 +110,8 @@ def test_window_shows_names_of_any_encoding(display, tmp_path, monkeypatch):
             return _original(*a, **k)
 
         monkeypatch.setattr(imgui, "tree_node" if name == "open" else "collapsing_header", forced)
-    monkeypatch.setitem(files_panel._ui, "browse", str(odd))
     app = ViewerApp(900, 700, vsync=False, threads=1, remember_recent=False)
+    app.panels.files.browse = str(odd)  # the Files panel browses the folder of odd names
     try:
         assert app.open_avatar(str(src)), app.state.errors
         assert app.open_sequence(str(seq)), app.state.errors
@@ -146,7 +146,8 @@ def test_window_with_an_avatar_of_0_gaussians(display, tmp_path, monkeypatch):
         assert app.open_avatar(str(zero)), app.state.errors
         app.state.show_stats = False
         deadline = time.monotonic() + 180  # a bound on a hang: the worker's first pose
-        while (app.info.canonical or app.info.posing) and time.monotonic() < deadline:
+        app.step()
+        while (app.poses.canonical or app.info.posing) and time.monotonic() < deadline:
             app.step()
         for _ in range(3):
             app.step()
@@ -155,14 +156,14 @@ def test_window_with_an_avatar_of_0_gaussians(display, tmp_path, monkeypatch):
         assert (view == view[0, 0]).all()  # the background only
         app.screenshot(str(tmp_path / "zero.png"))
         assert app.open_avatar(str(good)), app.state.errors
-        for action in (("select_all", None), ("edit_delete", None)):
+        for action in (A.SelectAll(), A.DeleteSelection()):
             app.state.actions.append(action)
             app.step()
         session = app.info.edit
         assert session is not None and len(session.avatar) == 0 and session.dirty
         saved = session.autosave()  # what the window's autosave timer and close do
         assert saved is not None and saved.is_file()
-        app.state.actions.append(("edit_recover", str(good)))
+        app.state.actions.append(A.RecoverEdits(str(good)))
         for _ in range(5):
             app.step()
         assert app.info.edit is not None and len(app.info.edit.avatar) == 0 and not app.state.errors, \

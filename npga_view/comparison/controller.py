@@ -18,7 +18,7 @@ from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError, shown
 from npga_core.evaluation.compare import MODES
 from npga_core.model.avatar import Avatar
-from npga_view.comparison import actions as C
+from npga_view import actions as C
 from npga_view.comparison.snapshot import CompareInfo
 from npga_view.comparison.sources import CompareSources
 from npga_view.comparison.view import PAIRS, CompareView

@@ -6,7 +6,7 @@ from __future__ import annotations
 from imgui_bundle import imgui
 
 from npga_core.evaluation.compare import MODES
-from npga_view.comparison import actions as C
+from npga_view import actions as C
 from npga_view.comparison.controller import score_label
 from npga_view.comparison.snapshot import CompareInfo
 from npga_view.comparison.view import PAIRS
