@@ -125,13 +125,10 @@ class Window:
 
     def screenshot(self, path: str, viewport_only: bool = False) -> str:
         """Save the window or the splat view as an image (PNG by the name); OSError naming the file."""
-        from npga_view.cli.render import RenderError, write_image
+        from npga_core.files.image_file import write_image  # (an OSError naming the file)
 
         Path(path).parent.mkdir(parents=True, exist_ok=True)
-        try:  # encoded by OpenCV, written by Python: OpenCV's own writing crashes on undecodable names
-            write_image(Path(path), self.read(viewport_only)[:, :, ::-1])
-        except RenderError as e:
-            raise OSError(str(e)) from None
+        write_image(Path(path), np.ascontiguousarray(self.read(viewport_only)[:, :, ::-1]))
         return str(path)
 
     def close(self) -> None:

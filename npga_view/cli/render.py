@@ -440,24 +440,14 @@ def _write_image(path: Path, picture: np.ndarray) -> None:
 
 
 def write_image(path: Path, bgr: np.ndarray, params: list[int] | None = None) -> None:
-    """An image encoded by OpenCV (by the file's suffix) and written atomically by Python: OpenCV's own writing
-    crashed the process (SIGSEGV) on a path it cannot encode, e.g. one with an undecodable byte."""
-    import cv2
+    """`npga_core.files.image_file.write_image`, its error as a RenderError (one line, exit 2)."""
+    from npga_core.files.image_file import ImageWriteError
+    from npga_core.files.image_file import write_image as write
 
-    from npga_core.errors import shown
-    from npga_core.files.atomic import atomic_write
-
-    ext = path.suffix.lower()
     try:
-        ok, data = cv2.imencode(ext, bgr, params or []) if ext.isascii() and ext.isprintable() else (False, None)
-    except cv2.error:
-        ok = False
-    if not ok:
-        raise RenderError(f"{shown(path)}: cannot encode an image of type {shown(ext) or '(none)'}")
-    try:
-        atomic_write(path, lambda fh: fh.write(data.tobytes()))
-    except OSError as e:
-        raise RenderError(f"{shown(path)}: could not write the image ({e.strerror or e})") from None
+        write(path, bgr, params)
+    except ImageWriteError as e:
+        raise RenderError(str(e)) from None
 
 
 def _progress(done: int, total: int, started: float) -> None:
