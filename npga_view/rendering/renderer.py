@@ -67,7 +67,7 @@ from npga_core.camera.cameras import Camera
 from npga_core.model.gaussians import PosedGaussians, sh_degree_from_count
 from npga_view.rendering.aux_passes import AuxiliaryPasses
 from npga_view.rendering.drawcost import PathCosts
-from npga_view.rendering.lines import LinePass, Lines
+from npga_view.rendering.lines import Lines
 from npga_view.rendering.sorting import sort_back_to_front, view_depths
 
 #: The GLSL sources: the repository's shaders/, installed as the package data `npga_view.shaders`.
