@@ -184,8 +184,8 @@ def make_cnn(cfg: RefineConfig, seed: int) -> ScreenCNN:
                         k[i], None if i == len(k) - 1 else cfg.cnn_activation) for i in range(len(k))]
     cnn = ScreenCNN(CNNConfig(layers, residual=True))
     with torch.no_grad():
-        cnn.convs[-1].weight.mul_(0.1)
-        cnn.convs[-1].bias.zero_()
+        cnn.convs[-1].weight.mul_(0.1)  # type: ignore[operator]
+        cnn.convs[-1].bias.zero_()  # type: ignore[operator]
     return cnn
 
 

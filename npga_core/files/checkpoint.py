@@ -429,7 +429,7 @@ def _read_data(path: Path, start: int, nbytes: int) -> np.ndarray:
     buf = np.empty(nbytes, np.uint8)
     with open_regular(path, "an .npga checkpoint") as fh:
         fh.seek(start)
-        got = fh.readinto(memoryview(buf)) if nbytes else 0
+        got = fh.readinto(memoryview(buf)) if nbytes else 0  # type: ignore[arg-type, attr-defined]
     if got != nbytes:
         raise _Invalid(f"truncated while reading: the data needs {nbytes} bytes, {got} could be read")
     buf.setflags(write=False)

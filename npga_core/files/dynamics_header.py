@@ -157,7 +157,7 @@ def cnn_section(cnn: ScreenCNN) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """The `cnn` header section and its arrays."""
     arrays = {}
     for i, conv in enumerate(cnn.convs):
-        arrays[f"cnn.layers.{i}.weight"] = conv.weight.detach().cpu().numpy()
+        arrays[f"cnn.layers.{i}.weight"] = conv.weight.detach().cpu().numpy()  # type: ignore[operator]
         if conv.bias is not None:
-            arrays[f"cnn.layers.{i}.bias"] = conv.bias.detach().cpu().numpy()
+            arrays[f"cnn.layers.{i}.bias"] = conv.bias.detach().cpu().numpy()  # type: ignore[operator]
     return cnn.config.to_json(), arrays

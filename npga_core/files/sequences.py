@@ -75,7 +75,7 @@ class ExpressionSequence:
         if self.frame_names is not None:
             arrays["frame_names"] = np.array(self.frame_names, dtype=np.str_)
         buf = io.BytesIO()
-        np.savez(buf, **arrays)
+        np.savez(buf, **arrays)  # type: ignore[arg-type]
         atomic_write(path, lambda fh: fh.write(buf.getvalue()))
 
     def check_dim(self, expected: int, path: str | Path | None = None) -> None:

@@ -51,8 +51,8 @@ def mlp_jvp(net: ConditionedMLP, first: torch.Tensor, z: torch.Tensor, v: torch.
     """
     c = net.config
     gw = c.mu_encoded_dim + c.feature_dim
-    dz = v * net.input_scale[3 + c.feature_dim:]  # tangent of the normalised code
-    dpre0 = net.layers[0].weight[:, gw:] @ dz
+    dz = v * net.input_scale[3 + c.feature_dim:]  # type: ignore[index]  # tangent of the normalised code
+    dpre0 = net.layers[0].weight[:, gw:] @ dz  # type: ignore[index]
     zt = net.code_term(z)
     zc = net.encode_code(z) if c.skips else None
     n = first.shape[0]
@@ -73,8 +73,8 @@ def mlp_jvp(net: ConditionedMLP, first: torch.Tensor, z: torch.Tensor, v: torch.
                 dh = torch.cat([dh, torch.zeros(m, gw), dz.expand(m, -1)], dim=-1)
             if i < c.depth - 1:
                 layer = net.layers[i]
-                pre, dpre = torch.addmm(layer.bias, h, layer.weight.t()), dh @ layer.weight.t()
-        out[s:e] = dh @ last.weight[cols].t()
+                pre, dpre = torch.addmm(layer.bias, h, layer.weight.t()), dh @ layer.weight.t()  # type: ignore[arg-type, operator]
+        out[s:e] = dh @ last.weight[cols].t()  # type: ignore[index]
     return out
 
 

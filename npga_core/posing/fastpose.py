@@ -291,7 +291,7 @@ class FastPoser:
         for key, net in self.nets.items():
             t = net.code_term(zt)
             consts = chains[key].frame_constants(net.encode_code(zt)) if net.config.skips else None
-            terms[key] = (t, net.layers[0].bias.detach() + t, consts)
+            terms[key] = (t, net.layers[0].bias.detach() + t, consts)  # type: ignore[operator]
         return terms
 
     def _chunk_offsets(self, lane: _Lane, rows: RowSet, terms: dict, s: int, e: int,

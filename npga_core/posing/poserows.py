@@ -79,8 +79,8 @@ def _encoding_key(net: ConditionedMLP) -> tuple:
     for spec in c.specs:
         w = c.raw_width(spec)
         if spec.kind in PER_GAUSSIAN_INPUTS:
-            key.append((spec, tuple(net.input_shift[col : col + w].tolist()),
-                        tuple(net.input_scale[col : col + w].tolist())))
+            key.append((spec, tuple(net.input_shift[col : col + w].tolist()),  # type: ignore[index]
+                        tuple(net.input_scale[col : col + w].tolist())))  # type: ignore[index]
         col += w
     return tuple(key)
 

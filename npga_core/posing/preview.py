@@ -110,7 +110,7 @@ class PreviewModel:
                   "meta": np.frombuffer(meta.encode(), np.uint8)}
         if self.sensitivity is not None:
             arrays["sensitivity"] = self.sensitivity.astype(np.float32)
-        atomic_write(Path(path), lambda fh: np.savez(fh, **arrays))
+        atomic_write(Path(path), lambda fh: np.savez(fh, **arrays))  # type: ignore[arg-type]
 
     @staticmethod
     def load(path: str | Path, key: str, n: int) -> PreviewModel | None:
