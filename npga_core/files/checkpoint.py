@@ -48,7 +48,7 @@ FORMAT_VERSION = 3
 ALIGN = 64
 MAX_HEADER_BYTES = 64 * 1024 * 1024
 MAX_PARAMETER = 1e8  # largest magnitude of a network weight, input normalisation or expression value
-_DTYPES = {"float32": np.dtype("<f4"), "int16": np.dtype("<i2")}
+_DTYPES: dict[str, np.dtype] = {"float32": np.dtype("<f4"), "int16": np.dtype("<i2")}
 
 Spec = dict[str, tuple[str, tuple[int, ...]]]
 
