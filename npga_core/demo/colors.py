@@ -242,9 +242,10 @@ class AlbedoModel:
         def depth(z0: float, z1: float) -> np.ndarray:  # 1 at the lips, falling off into the mouth
             return 0.45 + 0.55 * smoothstep(z0 * CM, z1 * CM, p[:, 2])
 
-        shades: dict[str, tuple[np.ndarray, np.ndarray | float]] = {"mouth_socket": (SOCKET, depth(3.0, 9.5)), "gums_tongue": (GUMS, depth(3.0, 10.0)),
-                  "teeth": (TEETH, 0.7 + 0.3 * smoothstep(6.0 * CM, 10.0 * CM, p[:, 2])),
-                  "eye_socket_l": (EYE_SOCKET, 1.0), "eye_socket_r": (EYE_SOCKET, 1.0)}
+        shades: dict[str, tuple[np.ndarray, np.ndarray | float]] = {
+            "mouth_socket": (SOCKET, depth(3.0, 9.5)), "gums_tongue": (GUMS, depth(3.0, 10.0)),
+            "teeth": (TEETH, 0.7 + 0.3 * smoothstep(6.0 * CM, 10.0 * CM, p[:, 2])),
+            "eye_socket_l": (EYE_SOCKET, 1.0), "eye_socket_r": (EYE_SOCKET, 1.0)}
         for name in _FLAT_PARTS:
             c, shade = shades[name]
             m = part == PART_NAMES.index(name)

@@ -197,6 +197,7 @@ def train_f(means: np.ndarray, features0: np.ndarray, targets: HeadTargets, extr
         mu_b, f_b = mu[gi], feats[gi]
         tgt = targets.offsets(gi, w[:n_main])
         if n_extra:
+            assert extra is not None  # n_extra is 0 without extra points
             xi = torch.randint(0, len(extra.targets), (n_extra,), generator=gen)
             mu_b = torch.cat([mu_b, extra.targets.rest[xi]])
             f_b = torch.cat([f_b, extra.features(feats, xi)])

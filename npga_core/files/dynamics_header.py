@@ -30,7 +30,7 @@ class HeaderError(ValueError):
 def network_configs(dyn: dict, version: int) -> dict[str, MLPConfig]:
     """Name -> architecture of every network of a `dynamics` section (HeaderError if malformed)."""
     if version == 1:
-        raw = {k: dyn.get(k) for k in ("F", "G") if dyn.get(k) is not None}
+        raw: Any = {k: dyn.get(k) for k in ("F", "G") if dyn.get(k) is not None}
         if not raw:
             raise HeaderError("dynamics has neither F nor G")
     else:

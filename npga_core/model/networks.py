@@ -225,7 +225,9 @@ class MLPConfig:
 
     def encoded_columns(self) -> tuple[list[int], list[int]]:
         """Columns of the encoded input that are per Gaussian, and those that are per frame."""
-        g, c, col = [], [], 0
+        g: list[int] = []
+        c: list[int] = []
+        col = 0
         for s in self.specs:
             w = s.encoded_width(self.raw_width(s))
             (g if s.kind in PER_GAUSSIAN_INPUTS else c).extend(range(col, col + w))
