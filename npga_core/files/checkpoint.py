@@ -184,7 +184,8 @@ def save_avatar(avatar: Avatar, path: str | Path, provenance: dict | None = None
     spec = expected_tensors(header)
     if set(spec) != set(arrays):
         raise ValueError(f"internal: tensors {sorted(set(spec) ^ set(arrays))} do not match the header")
-    table, offset = {}, 0
+    table: dict[str, dict[str, Any]] = {}
+    offset = 0
     for name, (dt, shape) in spec.items():
         a = arrays[name]
         if tuple(a.shape) != shape:
@@ -207,7 +208,7 @@ def save_avatar(avatar: Avatar, path: str | Path, provenance: dict | None = None
             fh.write(b"\0" * (entry["offset"] - pos))
             a = np.ascontiguousarray(arrays[name], dtype=_DTYPES[entry["dtype"]])
             if a.size:
-                fh.write(memoryview(a.reshape(-1)).cast("B"))
+                fh.write(memoryview(a.reshape(-1)).cast("B"))  # type: ignore[arg-type]
             pos = entry["offset"] + entry["nbytes"]
         fh.write(b"\0" * (offset - pos))
 

@@ -369,10 +369,10 @@ def _import_supres(path: Path, channels: int) -> ScreenCNN:
     except ValueError as e:
         raise AvatarFileError(path, f"does not fit the Gaussians' {channels} colour channels ({e})") from None
     with torch.no_grad():
-        for conv, (w, b) in zip(cnn.convs, weights, strict=True):
-            conv.weight.copy_(w)  # type: ignore[operator]
-            if b is not None:
-                conv.bias.copy_(b)  # type: ignore[operator]
+        for conv, (weight, bias) in zip(cnn.convs, weights, strict=True):
+            conv.weight.copy_(weight)  # type: ignore[operator]
+            if bias is not None:
+                conv.bias.copy_(bias)  # type: ignore[operator]
     return cnn.eval()
 
 

@@ -32,7 +32,7 @@ def _random_mlp(cfg: MLPConfig, gen: torch.Generator, out_scale: torch.Tensor, m
     with torch.no_grad():
         for layer in net.layers:
             bound = np.sqrt(6.0 / layer.weight.shape[1])  # type: ignore[index]  # He-uniform keeps activations O(1) through depth
-            layer.weight.uniform_(-bound, bound, generator=gen)  # type: ignore[operator]
+            layer.weight.uniform_(-bound, bound, generator=gen)  # type: ignore[arg-type, operator]
             layer.bias.uniform_(-0.1, 0.1, generator=gen)  # type: ignore[operator]
         last = net.layers[-1]
         last.weight.mul_(out_scale[:, None])  # type: ignore[operator]

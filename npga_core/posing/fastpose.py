@@ -148,7 +148,8 @@ class FastPoser:
         self._soa = _attribute_major(self.canonical)
         small = [(k, self.layout.blocks[k]) for k in SMALL_BLOCKS if k in self.layout.blocks]
         self._small: dict[str, tuple[int, int]] = {}
-        cols, o = [], 0
+        cols: list[int] = []
+        o = 0
         for key, (c, w) in small:
             self._small[key] = (o, w)
             cols += range(c, c + w)

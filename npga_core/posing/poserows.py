@@ -108,8 +108,9 @@ def _attribute_major(canonical: dict[str, torch.Tensor | None]) -> dict[str, tor
     soa["unit_quats"] = _unit(soa["quats"].clone())
     soa["opacity_logits"] = present["opacity_logits"].contiguous()
     soa["sh"] = present["sh"].reshape(present["sh"].shape[0], present["sh"].shape[1] * 3)
-    if canonical.get("latent") is not None:
-        soa["latent"] = canonical["latent"]
+    latent = canonical.get("latent")
+    if latent is not None:
+        soa["latent"] = latent
     return soa
 
 
