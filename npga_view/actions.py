@@ -28,6 +28,7 @@ STRICT_ENV = "NPGA_VIEW_STRICT_ACTIONS"
 Point2 = tuple[float, float]
 Point3 = tuple[float, float, float]
 CombineMode = Literal["replace", "add", "subtract", "intersect"]
+SelectToolName = Literal["rect", "lasso", "brush", "sphere", "box", "range"]
 PresetName = Literal["front", "three_quarter", "side", "top"]
 KeySource = Literal["sliders", "frame", "preset"]
 Track = Literal["expression", "camera"]
@@ -169,7 +170,7 @@ class CancelBake(Action):
 # -- selection (npga_core.editing) --------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class SelectTool(Action):
-    tool: Literal["rect", "lasso", "brush", "sphere", "box", "range"]
+    tool: SelectToolName
     mode: CombineMode = "replace"
     brush_radius: float = 20.0  # logical pixels
 

@@ -40,6 +40,7 @@ class OpeningHost(Protocol):
     sequence: ExpressionSequence | None
     threads: int
     device: str
+    precision: str
     legacy: bool
     remember_recent: bool
     window: Window | None

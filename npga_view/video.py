@@ -16,11 +16,16 @@ import os
 import tempfile
 from fractions import Fraction
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
 from npga_core.files.atomic import move_into_place
 from npga_core.files.untrusted import FPS_RANGE, shown
+
+if TYPE_CHECKING:
+    from av.container import OutputContainer
+    from av.video.stream import VideoStream
 
 CODEC = "libx264"
 PIX_FMT = "yuv420p"
@@ -72,8 +77,9 @@ class VideoWriter:
         os.close(fd)
         self._tmp = Path(tmp)
         try:
-            self._container = av.open(str(self._tmp), "w", format="mp4", options={"movflags": "+faststart"})
-            stream = self._container.add_stream(CODEC, rate=self.fps or 30)
+            container = av.open(str(self._tmp), "w", format="mp4", options={"movflags": "+faststart"})
+            self._container: OutputContainer | None = container
+            stream = cast("VideoStream", container.add_stream(CODEC, rate=self.fps or 30))
             stream.width, stream.height = self.size
             stream.pix_fmt = PIX_FMT
             stream.options = {"preset": preset, "crf": str(int(crf)), "bf": "0"}
@@ -182,7 +188,9 @@ class VideoWriter:
             # would otherwise guess the last one)
             if p.pts is not None:
                 p.duration = self._durations.pop(p.pts, p.duration)
-            self._container.mux(p)
+            container = self._container
+            assert container is not None  # packets come only while the file is open
+            container.mux(p)
 
     def _abort(self) -> None:
         if self._container is not None:
@@ -200,6 +208,6 @@ def read_video_info(path: str | Path) -> dict:
     with av.open(str(path)) as c:
         s = c.streams.video[0]
         times = [float(f.time) for f in c.decode(s)]
-        duration = float(s.duration * s.time_base) if s.duration else (c.duration or 0) / av.time_base
+        duration = float(s.duration * s.time_base) if s.duration else (c.duration or 0) / av.time_base  # type: ignore[operator]
         return {"codec": s.codec_context.name, "pix_fmt": s.codec_context.pix_fmt, "width": s.width,
                 "height": s.height, "frames": len(times), "times": times, "duration": duration}

@@ -174,7 +174,7 @@ class Camera:
         Path(path).write_text(json.dumps(self.to_dict(), indent=2) + "\n")
 
     @staticmethod
-    def from_dict(data: dict, source: str = "camera") -> Camera:
+    def from_dict(data: object, source: str = "camera") -> Camera:
         """Build a camera from a dict as written by `to_dict`; ValueError names `source` and the problem."""
         if not isinstance(data, dict):
             raise ValueError(f"{source}: expected a JSON object, got {type(data).__name__}")

@@ -17,6 +17,7 @@ import sys
 import time
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -119,7 +120,7 @@ def build(out: Path, seed: int = 0, cfg: BuildConfig | None = None, ict: Path | 
     err = tr.f_errors(net_f, s.points, features, targets, w_test, z_test)
     err_named = tr.f_errors(net_f, s.points, features, targets, w_named, z_named)
     mag = tr.offset_magnitudes(targets, w_test)
-    f_metrics = {
+    f_metrics: dict[str, Any] = {
         "held_out": {"all": _stats(err), "lips": _stats(err[:, lips]), "eyelids": _stats(err[:, lids]),
                      "target_offsets": _stats(mag)},
         "named": {"all": _stats(err_named), "lips": _stats(err_named[:, lips]),

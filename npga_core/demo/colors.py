@@ -36,7 +36,7 @@ EYE_SOCKET = np.array([0.62, 0.36, 0.34])
 KEY_LIGHT = np.array([0.35, 0.55, 1.0]) / np.linalg.norm([0.35, 0.55, 1.0])
 
 
-def smoothstep(e0: float, e1: float, x: np.ndarray) -> np.ndarray:
+def smoothstep(e0: float | np.ndarray, e1: float | np.ndarray, x: np.ndarray) -> np.ndarray:
     t = np.clip((x - e0) / (e1 - e0), 0.0, 1.0)
     return t * t * (3.0 - 2.0 * t)
 
@@ -242,9 +242,10 @@ class AlbedoModel:
         def depth(z0: float, z1: float) -> np.ndarray:  # 1 at the lips, falling off into the mouth
             return 0.45 + 0.55 * smoothstep(z0 * CM, z1 * CM, p[:, 2])
 
-        shades = {"mouth_socket": (SOCKET, depth(3.0, 9.5)), "gums_tongue": (GUMS, depth(3.0, 10.0)),
-                  "teeth": (TEETH, 0.7 + 0.3 * smoothstep(6.0 * CM, 10.0 * CM, p[:, 2])),
-                  "eye_socket_l": (EYE_SOCKET, 1.0), "eye_socket_r": (EYE_SOCKET, 1.0)}
+        shades: dict[str, tuple[np.ndarray, np.ndarray | float]] = {
+            "mouth_socket": (SOCKET, depth(3.0, 9.5)), "gums_tongue": (GUMS, depth(3.0, 10.0)),
+            "teeth": (TEETH, 0.7 + 0.3 * smoothstep(6.0 * CM, 10.0 * CM, p[:, 2])),
+            "eye_socket_l": (EYE_SOCKET, 1.0), "eye_socket_r": (EYE_SOCKET, 1.0)}
         for name in _FLAT_PARTS:
             c, shade = shades[name]
             m = part == PART_NAMES.index(name)

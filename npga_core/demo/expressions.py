@@ -147,8 +147,8 @@ class ExpressionSampler:
             for s in names:
                 self._set(w, rows[r], s, np.abs(yaw[r]))
         for r, base in ((pitch > 0, "eyeLookUp"), (pitch < 0, "eyeLookDown")):
-            for side in ("_L", "_R"):
-                self._set(w, rows[r], base + side, np.abs(pitch[r]))
+            for suffix in ("_L", "_R"):
+                self._set(w, rows[r], base + suffix, np.abs(pitch[r]))
         # nose and cheeks
         rows = pick(0.15)
         self._pair(w, rows, "noseSneer", u(rows, 0.1, 1.0), rng)

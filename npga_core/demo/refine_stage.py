@@ -26,6 +26,7 @@ import sys
 import time
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -184,8 +185,8 @@ def make_cnn(cfg: RefineConfig, seed: int) -> ScreenCNN:
                         k[i], None if i == len(k) - 1 else cfg.cnn_activation) for i in range(len(k))]
     cnn = ScreenCNN(CNNConfig(layers, residual=True))
     with torch.no_grad():
-        cnn.convs[-1].weight.mul_(0.1)
-        cnn.convs[-1].bias.zero_()
+        cnn.convs[-1].weight.mul_(0.1)  # type: ignore[operator]
+        cnn.convs[-1].bias.zero_()  # type: ignore[operator]
     return cnn
 
 
@@ -266,9 +267,11 @@ def make_crop(posed, target: HeadRenderer, weights: np.ndarray, cameras: tuple[C
 def build_data(avatar: Avatar, target: HeadRenderer, sampler: CropSampler, w: np.ndarray, z: np.ndarray,
                crops_each: int, rng: np.random.Generator, log) -> list[ExpressionData]:
     """Crops of every expression (posed by the avatar's F and G) with G's hidden layer on the Gaussians they see."""
-    g = avatar.dynamics.G
+    dyn = avatar.dynamics
+    assert dyn is not None and dyn.G is not None  # the demo avatar has G
+    g = dyn.G
     t = cloud_tensors(avatar.cloud)
-    first = g.precompute(t["means"], t["features"])
+    first = g.precompute(cast(torch.Tensor, t["means"]), cast(torch.Tensor, t["features"]))
     out = []
     for e in range(len(w)):
         posed = avatar.pose(z[e])
@@ -366,7 +369,8 @@ def evaluate(model: RefineModel, data: list[ExpressionData], cfg: RefineConfig) 
     every test crop over each report background."""
     m, s = cfg.margin, cfg.crop
     crops = [c for d in data for c in d.crops]
-    res = {k: [] for k in ("raw_psnr", "cnn_psnr", "raw_psnr_head", "cnn_psnr_head", "raw_ssim", "cnn_ssim")}
+    res: dict[str, list[float]] = {k: [] for k in ("raw_psnr", "cnn_psnr", "raw_psnr_head", "cnn_psnr_head",
+                                                   "raw_ssim", "cnn_ssim")}
     for bg in EVAL_BACKGROUNDS:
         bgs = torch.tensor([bg] * len(crops), dtype=torch.float32)
         x, t = model.inputs(data, crops, bgs)
@@ -449,7 +453,7 @@ def refine(out: Path, seed: int = 0, cfg: RefineConfig | None = None, ict: Path 
     with torch.no_grad():
         offsets = torch.cat([d.hidden.float() @ model.readout_w.T + model.readout_b for d in test_data])
     latent = model.h.detach().numpy().astype(np.float32)
-    summary = {
+    summary: dict[str, Any] = {
         "generator": "npga_core.demo.refine_stage",
         "config": {k: (list(v) if isinstance(v, tuple) else v) for k, v in asdict(cfg).items()},
         "seed": seed,
@@ -478,14 +482,16 @@ def refine(out: Path, seed: int = 0, cfg: RefineConfig | None = None, ict: Path 
     d0 = test_data[0]
     with torch.no_grad():
         want = model.latent_rows(d0).numpy()
-    got = result.pose(d0.code).latent[d0.rows.numpy()]
+    posed_latent = result.pose(d0.code).latent
+    assert posed_latent is not None  # the result has the trained latent block
+    got = posed_latent[d0.rows.numpy()]
     summary["latent_check_max_abs"] = float(np.abs(got - want).max())
     if summary["latent_check_max_abs"] > 1e-2:
         raise RuntimeError(f"posed latent differs from the trained one by {summary['latent_check_max_abs']:.3g}")
     save_avatar(result, path)
     write_readme(Path(out), build_seed, bool(prov.get("quick")), prov)
     stamp(f"wrote {path} ({path.stat().st_size / 2**20:.1f} MiB): h {cfg.latent_dim} channels, G + latent block, "
-          f"CNN {[c.kernel for c in result.cnn.config.layers]}")
+          f"CNN {[c.kernel for c in cast(ScreenCNN, result.cnn).config.layers]}")
     return summary
 
 

@@ -76,8 +76,8 @@ def standardise_inputs(net: ConditionedMLP, means: np.ndarray, features: np.ndar
     raw = [means, features, codes]
     shift = np.concatenate([a.mean(axis=0) for a in raw])
     scale = np.concatenate([1.0 / np.maximum(a.std(axis=0), 1e-6) for a in raw])
-    net.input_shift.copy_(torch.from_numpy(shift.astype(np.float32)))
-    net.input_scale.copy_(torch.from_numpy(scale.astype(np.float32)))
+    net.input_shift.copy_(torch.from_numpy(shift.astype(np.float32)))  # type: ignore[operator]
+    net.input_scale.copy_(torch.from_numpy(scale.astype(np.float32)))  # type: ignore[operator]
 
 
 @torch.no_grad()
@@ -87,8 +87,8 @@ def fold_output_scale(net: ConditionedMLP, scales: dict[str, float]) -> None:
     o = 0
     for name, width in net.config.outputs:
         s = scales.get(name, 1.0)
-        last.weight[o:o + width] *= s
-        last.bias[o:o + width] *= s
+        last.weight[o:o + width] *= s  # type: ignore[index, operator]
+        last.bias[o:o + width] *= s  # type: ignore[index, operator]
         o += width
 
 
@@ -197,6 +197,7 @@ def train_f(means: np.ndarray, features0: np.ndarray, targets: HeadTargets, extr
         mu_b, f_b = mu[gi], feats[gi]
         tgt = targets.offsets(gi, w[:n_main])
         if n_extra:
+            assert extra is not None  # n_extra is 0 without extra points
             xi = torch.randint(0, len(extra.targets), (n_extra,), generator=gen)
             mu_b = torch.cat([mu_b, extra.targets.rest[xi]])
             f_b = torch.cat([f_b, extra.features(feats, xi)])
@@ -311,7 +312,7 @@ def g_errors(net: ConditionedMLP, means: np.ndarray, features: np.ndarray, targe
         fv = targets.vertex_gradients(w_all[t:t + 1])
         gi = torch.randint(0, len(mu), (per_expression,), generator=gen)
         tg = targets.g_targets(gi, torch.zeros_like(gi), w_all[t:t + 1], fv)
-        out = net.split(net(mu[gi], f[gi], torch.from_numpy(codes[t])))
+        out = net.split(net(mu[gi], f[gi], torch.from_numpy(codes[t])))  # type: ignore[operator]
         q_pred = out["rotation"] + identity
         q_pred = q_pred / q_pred.norm(dim=1, keepdim=True)
         q_tgt = tg.rotation + identity

@@ -11,7 +11,7 @@ import itertools
 from abc import ABC, abstractmethod
 from dataclasses import replace
 from pathlib import Path
-from typing import Protocol
+from typing import Any, Protocol, cast
 
 import numpy as np
 
@@ -89,7 +89,7 @@ class SetSelection(Command):
         s.selection = self.mask.copy()
 
     def undo(self, s: Session) -> None:
-        s.selection = self._prev
+        s.selection = cast(np.ndarray, self._prev)
 
 
 class Hide(Command):
@@ -109,7 +109,7 @@ class Hide(Command):
         s.selection = np.zeros(len(s), bool)
 
     def undo(self, s: Session) -> None:
-        s.hidden, s.selection = self._prev
+        s.hidden, s.selection = cast(tuple[np.ndarray, np.ndarray], self._prev)
 
 
 class ShowAll(Command):
@@ -126,7 +126,7 @@ class ShowAll(Command):
         s.hidden = np.zeros(len(s), bool)
 
     def undo(self, s: Session) -> None:
-        s.hidden = self._prev
+        s.hidden = cast(np.ndarray, self._prev)
 
 
 class RowEdit(Command):
@@ -269,21 +269,23 @@ class DeleteRows(Command):
         s.hidden = self._masks[1][keep]
 
     def undo(self, s: Session) -> None:
+        index, rows, masks = self.index, self._rows, self._masks
+        assert index is not None and rows is not None and masks is not None  # undo follows do
         cur = s.avatar.cloud
-        n = len(cur) + len(self.index)
+        n = len(cur) + len(index)
         keep = np.ones(n, bool)
-        keep[self.index] = False
-        restored = {}
+        keep[index] = False
+        restored: dict[str, Any] = {}
         for name in PER_GAUSSIAN_FIELDS:
             a = getattr(cur, name)
             if a is None:
                 continue
             out = np.empty((n, *a.shape[1:]), dtype=a.dtype)
             out[keep] = a
-            out[self.index] = self._rows[name]
+            out[index] = rows[name]
             restored[name] = out
         s.set_cloud(replace(cur, **restored))
-        s.selection, s.hidden = self._masks
+        s.selection, s.hidden = masks
         self._rows = self._masks = None
 
     def label(self, count: int) -> str:
@@ -303,7 +305,8 @@ class RemoveFloaters(DeleteRows):
     def __init__(self, k: int = DEFAULT_K, distance_factor: float = 3.0, min_opacity: float = 0.02,
                  within_selection: bool = False):
         super().__init__()
-        self.params = {"k": int(k), "distance_factor": float(distance_factor), "min_opacity": float(min_opacity)}
+        self.params: dict[str, Any] = {"k": int(k), "distance_factor": float(distance_factor),
+                                       "min_opacity": float(min_opacity)}
         self.within_selection = within_selection
 
     def pick(self, s: Session) -> np.ndarray:

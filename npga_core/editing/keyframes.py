@@ -27,6 +27,7 @@ import json
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
@@ -152,7 +153,8 @@ class KeyframeTimeline:
     @property
     def duration(self) -> float:
         """Seconds from 0 to the end of the last key (its hold included); 0 when empty."""
-        ends = [k.time + k.hold for k in (*self.expression, *self.camera)]
+        keys: list[ExpressionKey | CameraKey] = [*self.expression, *self.camera]
+        ends = [k.time + k.hold for k in keys]
         return max(ends, default=0.0)
 
     def is_empty(self) -> bool:
@@ -363,7 +365,7 @@ def _parse(data: object) -> KeyframeTimeline:
             where = f"{track}[{j}]"
             if not isinstance(item, dict):
                 raise ValueError(f"{where} must be an object")
-            common = {name: _number(item, name, where, 0.0) for name in ("ease_in", "ease_out", "hold")}
+            common: dict[str, Any] = {name: _number(item, name, where, 0.0) for name in ("ease_in", "ease_out", "hold")}
             common["label"] = str(item.get("label", ""))
             t = _number(item, "time", where)
             i = bisect.bisect_left(seen, t - SAME_TIME)

@@ -75,7 +75,8 @@ def in_lasso(camera: Camera, means: np.ndarray, polygon_px: np.ndarray) -> np.nd
     return front & points_in_polygon(uv, polygon_px)
 
 
-def in_brush(camera: Camera, means: np.ndarray, centre_px: tuple[float, float], radius_px: float) -> np.ndarray:
+def in_brush(camera: Camera, means: np.ndarray, centre_px: tuple[float, float] | np.ndarray,
+             radius_px: float) -> np.ndarray:
     """Gaussians in front of the camera whose centre projects within `radius_px` of `centre_px`."""
     uv, front = project_front(camera, means)
     d2 = ((uv - np.asarray(centre_px, dtype=np.float64)) ** 2).sum(axis=1)

@@ -104,7 +104,7 @@ def image_size(path: Path) -> tuple[int, int]:
         with open_regular(path, "an image") as fh:
             head = fh.read(24)
             if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
-                size = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
+                size: tuple[int, int] | None = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
             elif head[:2] == b"\xff\xd8":
                 size = _jpeg_size(fh)
             else:

@@ -43,10 +43,10 @@ def load_view(capture: Capture, view: View, mask_kind: str) -> ScoredView:
         mask = (mask > 0).astype(np.float32)
     cam = view.camera
     if image.shape[:2] != (cam.height, cam.width):
-        raise AvatarFileError(f"{view.image_path}: {image.shape[1]}x{image.shape[0]}, other than its camera's "
+        raise AvatarFileError(view.image_path, f"{image.shape[1]}x{image.shape[0]}, other than its camera's "
                               f"{cam.width}x{cam.height}")
     if mask is not None and mask.shape[:2] != image.shape[:2]:
-        raise AvatarFileError(f"{path}: mask {mask.shape[1]}x{mask.shape[0]}, other than its image's "
+        raise AvatarFileError(str(path), f"mask {mask.shape[1]}x{mask.shape[0]}, other than its image's "
                               f"{image.shape[1]}x{image.shape[0]}")
     return ScoredView(cam, image, mask)
 

@@ -51,7 +51,7 @@ def _replace(src: str, dst: Path) -> None:
             time.sleep(0.05)
 
 
-def atomic_write(path: str | Path, write: Callable[[BinaryIO], None]) -> None:
+def atomic_write(path: str | Path, write: Callable[[BinaryIO], object]) -> None:
     """Call `write(fh)` on a temp file and move it over `path` only once it is complete and on disk.
 
     A crash or error at any point leaves either the old file untouched or the complete new one, and no

@@ -99,7 +99,7 @@ def match_names(source: list[str] | tuple[str, ...], target: list[str] | tuple[s
     `target` (a file with the wrong columns should not play as a neutral face).
     """
     src, tgt = tuple(str(s) for s in source), tuple(str(t) for t in target)
-    tkeys = {}
+    tkeys: dict[str, int] = {}
     for j, t in enumerate(tgt):
         tkeys.setdefault(name_key(t), j)
     m = np.zeros((len(tgt), len(src)), np.float64)

@@ -48,7 +48,7 @@ FORMAT_VERSION = 3
 ALIGN = 64
 MAX_HEADER_BYTES = 64 * 1024 * 1024
 MAX_PARAMETER = 1e8  # largest magnitude of a network weight, input normalisation or expression value
-_DTYPES = {"float32": np.dtype("<f4"), "int16": np.dtype("<i2")}
+_DTYPES: dict[str, np.dtype] = {"float32": np.dtype("<f4"), "int16": np.dtype("<i2")}
 
 Spec = dict[str, tuple[str, tuple[int, ...]]]
 
@@ -184,7 +184,8 @@ def save_avatar(avatar: Avatar, path: str | Path, provenance: dict | None = None
     spec = expected_tensors(header)
     if set(spec) != set(arrays):
         raise ValueError(f"internal: tensors {sorted(set(spec) ^ set(arrays))} do not match the header")
-    table, offset = {}, 0
+    table: dict[str, dict[str, Any]] = {}
+    offset = 0
     for name, (dt, shape) in spec.items():
         a = arrays[name]
         if tuple(a.shape) != shape:
@@ -207,7 +208,7 @@ def save_avatar(avatar: Avatar, path: str | Path, provenance: dict | None = None
             fh.write(b"\0" * (entry["offset"] - pos))
             a = np.ascontiguousarray(arrays[name], dtype=_DTYPES[entry["dtype"]])
             if a.size:
-                fh.write(memoryview(a.reshape(-1)).cast("B"))
+                fh.write(memoryview(a.reshape(-1)).cast("B"))  # type: ignore[arg-type]
             pos = entry["offset"] + entry["nbytes"]
         fh.write(b"\0" * (offset - pos))
 
@@ -429,7 +430,7 @@ def _read_data(path: Path, start: int, nbytes: int) -> np.ndarray:
     buf = np.empty(nbytes, np.uint8)
     with open_regular(path, "an .npga checkpoint") as fh:
         fh.seek(start)
-        got = fh.readinto(memoryview(buf)) if nbytes else 0
+        got = fh.readinto(memoryview(buf)) if nbytes else 0  # type: ignore[arg-type, attr-defined]
     if got != nbytes:
         raise _Invalid(f"truncated while reading: the data needs {nbytes} bytes, {got} could be read")
     buf.setflags(write=False)

@@ -30,7 +30,7 @@ class HeaderError(ValueError):
 def network_configs(dyn: dict, version: int) -> dict[str, MLPConfig]:
     """Name -> architecture of every network of a `dynamics` section (HeaderError if malformed)."""
     if version == 1:
-        raw = {k: dyn.get(k) for k in ("F", "G") if dyn.get(k) is not None}
+        raw: Any = {k: dyn.get(k) for k in ("F", "G") if dyn.get(k) is not None}
         if not raw:
             raise HeaderError("dynamics has neither F nor G")
     else:
@@ -157,7 +157,7 @@ def cnn_section(cnn: ScreenCNN) -> tuple[dict[str, Any], dict[str, np.ndarray]]:
     """The `cnn` header section and its arrays."""
     arrays = {}
     for i, conv in enumerate(cnn.convs):
-        arrays[f"cnn.layers.{i}.weight"] = conv.weight.detach().cpu().numpy()
+        arrays[f"cnn.layers.{i}.weight"] = conv.weight.detach().cpu().numpy()  # type: ignore[operator]
         if conv.bias is not None:
-            arrays[f"cnn.layers.{i}.bias"] = conv.bias.detach().cpu().numpy()
+            arrays[f"cnn.layers.{i}.bias"] = conv.bias.detach().cpu().numpy()  # type: ignore[operator]
     return cnn.config.to_json(), arrays

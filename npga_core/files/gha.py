@@ -224,8 +224,8 @@ def _load_mlp(cfg: MLPConfig, state: dict, name: str) -> ConditionedMLP:
     net = ConditionedMLP(cfg)
     with torch.no_grad():
         for i, layer in enumerate(net.layers):
-            layer.weight.copy_(state[f"{name}.conv{i}.weight"][:, :, 0])
-            layer.bias.copy_(state[f"{name}.conv{i}.bias"])
+            layer.weight.copy_(state[f"{name}.conv{i}.weight"][:, :, 0])  # type: ignore[operator]
+            layer.bias.copy_(state[f"{name}.conv{i}.bias"])  # type: ignore[operator]
     return net.eval()
 
 
@@ -369,10 +369,10 @@ def _import_supres(path: Path, channels: int) -> ScreenCNN:
     except ValueError as e:
         raise AvatarFileError(path, f"does not fit the Gaussians' {channels} colour channels ({e})") from None
     with torch.no_grad():
-        for conv, (w, b) in zip(cnn.convs, weights, strict=True):
-            conv.weight.copy_(w)
-            if b is not None:
-                conv.bias.copy_(b)
+        for conv, (weight, bias) in zip(cnn.convs, weights, strict=True):
+            conv.weight.copy_(weight)  # type: ignore[operator]
+            if bias is not None:
+                conv.bias.copy_(bias)  # type: ignore[operator]
     return cnn.eval()
 
 

@@ -4,6 +4,7 @@ SIGSEGV, on a path it cannot encode, e.g. one with an undecodable byte)."""
 from __future__ import annotations
 
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -26,7 +27,8 @@ def write_image(path: Path, bgr: np.ndarray, params: list[int] | None = None) ->
         ok = False
     if not ok:
         raise ImageWriteError(f"{shown(path)}: cannot encode an image of type {shown(ext) or '(none)'}")
+    encoded = cast(np.ndarray, data)  # present when ok
     try:
-        atomic_write(path, lambda fh: fh.write(data.tobytes()))
+        atomic_write(path, lambda fh: fh.write(encoded.tobytes()))
     except OSError as e:
         raise ImageWriteError(f"{shown(path)}: could not write the image ({e.strerror or e})") from None

@@ -17,6 +17,7 @@ import importlib.resources
 import os
 import tempfile
 from pathlib import Path
+from typing import cast
 
 import platformdirs
 
@@ -34,7 +35,7 @@ def bundled_root() -> Path:
         root = importlib.resources.files("npga_core.assets")
     except ModuleNotFoundError:
         return Path("npga_core.assets (not installed: pip install -e . or a wheel)")
-    return Path(os.fspath(root)).resolve()  # a plain folder: wheels are installed unpacked
+    return Path(os.fspath(cast(Path, root))).resolve()  # a plain folder: wheels are installed unpacked
 
 
 def bundled_path(*parts: str) -> Path:

@@ -67,7 +67,7 @@ class ExpressionSequence:
     def save(self, path: str | Path) -> None:
         """Write the `.npzseq` format atomically."""
         path = Path(path)
-        arrays: dict[str, np.ndarray] = {"codes": np.asarray(self.codes, np.float32),
+        arrays: dict[str, np.ndarray | np.generic] = {"codes": np.asarray(self.codes, np.float32),
                                          "fps": np.float64(self.fps), "name": np.str_(self.name)}
         if self.pose is not None:
             arrays["pose"] = np.asarray(self.pose, np.float64)
@@ -75,7 +75,7 @@ class ExpressionSequence:
         if self.frame_names is not None:
             arrays["frame_names"] = np.array(self.frame_names, dtype=np.str_)
         buf = io.BytesIO()
-        np.savez(buf, **arrays)
+        np.savez(buf, **arrays)  # type: ignore[arg-type]
         atomic_write(path, lambda fh: fh.write(buf.getvalue()))
 
     def check_dim(self, expected: int, path: str | Path | None = None) -> None:
@@ -133,8 +133,8 @@ def _stored_pose(z: dict[str, np.ndarray], t: int, path: Path) -> tuple[np.ndarr
     if "pose" in z:
         if any(k in z for k in POSE_KEYS):
             raise AvatarFileError(path, f"has both pose and {'/'.join(k for k in POSE_KEYS if k in z)}")
-        source = z.get("pose_source")
-        source = str(source.reshape(-1)[0]) if source is not None and source.size == 1 else "as stored"
+        stored = z.get("pose_source")
+        source = str(stored.reshape(-1)[0]) if stored is not None and stored.size == 1 else "as stored"
         return checked_pose(z["pose"], t, path), source
     if any(k in z for k in POSE_KEYS):
         return similarity_pose(z.get("rotation"), z.get("translation"), z.get("scale"), t, path), SIMILARITY

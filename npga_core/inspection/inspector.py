@@ -41,6 +41,7 @@ from __future__ import annotations
 
 import time
 from dataclasses import astuple, dataclass
+from typing import cast
 
 import numpy as np
 
@@ -302,6 +303,7 @@ class Inspector:
                 raise ValueError("the avatar has no latent features h")
             return pca_colouring(x, self.pca(name), "f" if name == "features" else "h")
         if name in ("feature", "latent"):
+            assert channel is not None  # parse_mode gives these names only with a channel
             x = self.cloud.features if name == "feature" else posed.latent
             if x is None or not 0 <= channel < x.shape[1]:
                 width = 0 if x is None else x.shape[1]
@@ -413,7 +415,7 @@ class Inspector:
         if s.knn_show == "all" or (s.knn_show == "selection" and selection is not None):
             edges = knn_edges(nbrs)
             if s.knn_show == "selection":
-                edges = edges_touching(edges, selection)
+                edges = edges_touching(edges, cast(np.ndarray, selection))
             parts.append((edges, self.edge_colours(s.knn_colour, edges, pos)))
         if picked is not None:  # the picked Gaussian's own k neighbours, in the pick colour
             edges = np.stack([np.full(nbrs.shape[1], picked), nbrs[picked]], axis=1).astype(np.int32)

@@ -7,6 +7,7 @@ along a PCA direction) by forward-mode differentiation through the MLPs (`mlp_jv
 from __future__ import annotations
 
 import warnings
+from typing import cast
 
 import numpy as np
 import torch
@@ -37,7 +38,7 @@ def _activation_jvp(net: ConditionedMLP, pre: torch.Tensor, dpre: torch.Tensor) 
         return torch.relu(pre), dpre * (pre > 0)
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", DeprecationWarning)  # torch scripts its jvp decompositions once
-        return torch.func.jvp(net._act, (pre,), (dpre,))
+        return cast(tuple[torch.Tensor, torch.Tensor], torch.func.jvp(net._act, (pre,), (dpre,)))
 
 
 @torch.no_grad()
@@ -51,8 +52,8 @@ def mlp_jvp(net: ConditionedMLP, first: torch.Tensor, z: torch.Tensor, v: torch.
     """
     c = net.config
     gw = c.mu_encoded_dim + c.feature_dim
-    dz = v * net.input_scale[3 + c.feature_dim:]  # tangent of the normalised code
-    dpre0 = net.layers[0].weight[:, gw:] @ dz
+    dz = v * net.input_scale[3 + c.feature_dim:]  # type: ignore[index]  # tangent of the normalised code
+    dpre0 = net.layers[0].weight[:, gw:] @ dz  # type: ignore[index]
     zt = net.code_term(z)
     zc = net.encode_code(z) if c.skips else None
     n = first.shape[0]
@@ -69,12 +70,13 @@ def mlp_jvp(net: ConditionedMLP, first: torch.Tensor, z: torch.Tensor, v: torch.
             h, dh = _activation_jvp(net, pre, dpre)
             if i in c.skips:
                 mu, f = gaussian_inputs
+                assert zc is not None  # encoded when the network has skips
                 h = torch.cat([h, net.encode_gaussian(mu[s:e], f[s:e]), zc.expand(m, -1)], dim=-1)
                 dh = torch.cat([dh, torch.zeros(m, gw), dz.expand(m, -1)], dim=-1)
             if i < c.depth - 1:
                 layer = net.layers[i]
-                pre, dpre = torch.addmm(layer.bias, h, layer.weight.t()), dh @ layer.weight.t()
-        out[s:e] = dh @ last.weight[cols].t()
+                pre, dpre = torch.addmm(layer.bias, h, layer.weight.t()), dh @ layer.weight.t()  # type: ignore[arg-type, operator]
+        out[s:e] = dh @ last.weight[cols].t()  # type: ignore[index]
     return out
 
 

@@ -94,7 +94,7 @@ class Avatar:
             for name, arr in arrays:
                 a = np.ascontiguousarray(arr)
                 h.update(f"{name}{a.dtype.str}{a.shape}".encode())
-                h.update(a.reshape(-1).view(np.uint8))
+                h.update(a.reshape(-1).view(np.uint8))  # type: ignore[arg-type]
             self._content_key = h.hexdigest()
         return self._content_key
 

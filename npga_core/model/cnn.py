@@ -242,7 +242,7 @@ class ScreenCNN(nn.Module):
     @property
     def device(self) -> torch.device:
         """Where the weights are (the input goes there, the output comes back to the CPU)."""
-        return self.convs[0].weight.device
+        return self.convs[0].weight.device  # type: ignore[return-value]
 
     def assemble(self, rgb: np.ndarray | None, latent: np.ndarray | None, alpha: np.ndarray | None) -> np.ndarray:
         """The CNN's input image (H, W, C) from the rendered RGB (over the background), the composited latent

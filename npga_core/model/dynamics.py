@@ -214,7 +214,7 @@ class Dynamics(nn.Module):
         return self.rules["rotation"]
 
     def _first(self) -> MLPConfig:
-        return next(iter(self.nets.values())).config
+        return next(iter(self.nets.values())).config  # type: ignore[return-value]
 
     @property
     def expression_dim(self) -> int:
@@ -236,12 +236,12 @@ class Dynamics(nn.Module):
         return self._first().feature_dim
 
     def networks(self) -> dict[str, ConditionedMLP]:
-        return dict(self.nets.items())
+        return dict(self.nets.items())  # type: ignore[arg-type]
 
     @property
     def simple(self) -> bool:
         """Expressible in format version 1 (F and/or G of the fixed architecture, no blend, no condition)."""
-        return (set(self.nets) <= {"F", "G"} and all(n.config.simple for n in self.nets.values())
+        return (set(self.nets) <= {"F", "G"} and all(n.config.simple for n in self.nets.values())  # type: ignore[union-attr]
                 and self.rules["rotation"] in ("compose", "add")
                 and all(r == RULES[a][0] for a, r in self.rules.items() if a != "rotation")
                 and (self.F is None or [n for n, _ in self.F.config.outputs] == ["position"]))
@@ -255,10 +255,10 @@ class Dynamics(nn.Module):
         by = {}
         for key, net in self.nets.items():
             out = net(mu, f, z)
-            widths = attribute_widths({key: net})
+            widths = attribute_widths({key: net})  # type: ignore[dict-item]
             acc = {a: torch.zeros(out.shape[0], w, dtype=out.dtype) for a, w in widths.items()}
-            w = None if net.config.blend is None else (blend or {})[net.config.blend]
-            route_into(acc, net, out, w)
+            w = None if net.config.blend is None else (blend or {})[net.config.blend]  # type: ignore[index, union-attr]
+            route_into(acc, net, out, w)  # type: ignore[arg-type]
             by[key] = acc
         return Offsets(by)
 

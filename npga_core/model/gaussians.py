@@ -14,6 +14,7 @@ deletion and the checkpoint writer all iterate it, so nothing is forgotten when 
 from __future__ import annotations
 
 from dataclasses import dataclass, field, fields, replace
+from typing import Any
 
 import numpy as np
 
@@ -129,7 +130,8 @@ class GaussianCloud:
     def subset(self, index: np.ndarray) -> GaussianCloud:
         """A new cloud with the rows selected by an index or boolean mask (arrays are copied)."""
         index = np.asarray(index)
-        kw = {k: (None if v is None else np.ascontiguousarray(v[index])) for k, v in self._fields().items()}
+        kw: dict[str, Any] = {k: (None if v is None else np.ascontiguousarray(v[index]))
+                              for k, v in self._fields().items()}
         return replace(self, **kw)
 
     def copy(self) -> GaussianCloud:
@@ -145,7 +147,7 @@ class GaussianCloud:
         if not clouds:
             raise ValueError("nothing to concatenate")
         first = clouds[0]
-        kw = {}
+        kw: dict[str, Any] = {}
         for name in PER_GAUSSIAN_FIELDS:
             parts = [getattr(c, name) for c in clouds]
             if all(p is None for p in parts):
@@ -213,6 +215,7 @@ class PosedGaussians:
 
     def subset(self, index: np.ndarray) -> PosedGaussians:
         """Rows selected by an index or mask."""
-        kw = {f.name: (None if getattr(self, f.name) is None else getattr(self, f.name)[index]) for f in fields(self)}
+        kw: dict[str, Any] = {f.name: (None if getattr(self, f.name) is None else getattr(self, f.name)[index])
+                              for f in fields(self)}
         return PosedGaussians(**kw)
 

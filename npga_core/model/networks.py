@@ -225,7 +225,9 @@ class MLPConfig:
 
     def encoded_columns(self) -> tuple[list[int], list[int]]:
         """Columns of the encoded input that are per Gaussian, and those that are per frame."""
-        g, c, col = [], [], 0
+        g: list[int] = []
+        c: list[int] = []
+        col = 0
         for s in self.specs:
             w = s.encoded_width(self.raw_width(s))
             (g if s.kind in PER_GAUSSIAN_INPUTS else c).extend(range(col, col + w))
@@ -369,7 +371,7 @@ class ConditionedMLP(nn.Module):
         for s in self.config.specs:
             w = self.config.raw_width(s)
             if (s.kind in PER_GAUSSIAN_INPUTS) == per_gaussian:
-                x = (parts[s.kind] - self.input_shift[col : col + w]) * self.input_scale[col : col + w]
+                x = (parts[s.kind] - self.input_shift[col : col + w]) * self.input_scale[col : col + w]  # type: ignore[index]
                 out.append(encode(x, s))
             col += w
         if not out:
@@ -417,7 +419,7 @@ class ConditionedMLP(nn.Module):
     # -- generic fast path -------------------------------------------------------------------------
     def split_weight(self, i: int) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor | None]:
         """Layer i's weight as (per-Gaussian input columns, per-frame input columns, hidden columns or None)."""
-        w = self.layers[i].weight.detach()
+        w = self.layers[i].weight.detach()  # type: ignore[operator]
         hid = None
         if i > 0:
             hid, w = w[:, : self.config.hidden], w[:, self.config.hidden :]
@@ -428,7 +430,7 @@ class ConditionedMLP(nn.Module):
         """Per-Gaussian part of the first layer, bias included: (N, width of layer 0)."""
         g = self.encode_gaussian(mu, f)
         wg, _, _ = self.split_weight(0)
-        return torch.addmm(self.layers[0].bias, g, wg.t())
+        return torch.addmm(self.layers[0].bias, g, wg.t())  # type: ignore[arg-type]
 
     @torch.no_grad()
     def code_term(self, z: torch.Tensor) -> torch.Tensor:

@@ -31,15 +31,15 @@ def _random_mlp(cfg: MLPConfig, gen: torch.Generator, out_scale: torch.Tensor, m
     net = ConditionedMLP(cfg)
     with torch.no_grad():
         for layer in net.layers:
-            bound = np.sqrt(6.0 / layer.weight.shape[1])  # He-uniform keeps activations O(1) through depth
-            layer.weight.uniform_(-bound, bound, generator=gen)
-            layer.bias.uniform_(-0.1, 0.1, generator=gen)
+            bound = np.sqrt(6.0 / layer.weight.shape[1])  # type: ignore[index]  # He-uniform keeps activations O(1) through depth
+            layer.weight.uniform_(-bound, bound, generator=gen)  # type: ignore[arg-type, operator]
+            layer.bias.uniform_(-0.1, 0.1, generator=gen)  # type: ignore[operator]
         last = net.layers[-1]
-        last.weight.mul_(out_scale[:, None])
-        last.bias.mul_(out_scale)
-        net.input_scale[:3] = 1.0 / mu_scale
+        last.weight.mul_(out_scale[:, None])  # type: ignore[operator]
+        last.bias.mul_(out_scale)  # type: ignore[operator]
+        net.input_scale[:3] = 1.0 / mu_scale  # type: ignore[operator]
         if code_std is not None:
-            net.input_scale[3 + cfg.feature_dim :] = torch.from_numpy(1.0 / np.maximum(code_std, 1e-6))
+            net.input_scale[3 + cfg.feature_dim :] = torch.from_numpy(1.0 / np.maximum(code_std, 1e-6))  # type: ignore[operator]
     net.eval()
     return net
 

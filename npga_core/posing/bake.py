@@ -41,7 +41,7 @@ def bake_key(avatar_key: str, codes: np.ndarray, bits: int, budget_bytes: int) -
     h = hashlib.blake2b(digest_size=16)
     codes = np.ascontiguousarray(codes, np.float32)
     h.update(f"{BAKE_FORMAT}|{avatar_key}|{bits}|{budget_bytes}|{codes.shape}".encode())
-    h.update(memoryview(codes).cast("B"))
+    h.update(memoryview(codes).cast("B"))  # type: ignore[arg-type]
     return h.hexdigest()
 
 

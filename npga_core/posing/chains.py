@@ -84,8 +84,8 @@ class Chain:
         self.skips = set(cfg.skips)
         wg, _, _ = net.split_weight(0)
         self.first_weight = wg.t().contiguous()
-        self.weights = [layer.weight.detach().t().contiguous() for layer in net.layers]
-        self.biases = [layer.bias.detach() for layer in net.layers]
+        self.weights = [layer.weight.detach().t().contiguous() for layer in net.layers]  # type: ignore[operator]
+        self.biases = [layer.bias.detach() for layer in net.layers]  # type: ignore[operator]
         # skip layers: hidden columns (transposed, for h @ W), per-Gaussian and per-frame input columns
         self.skip_parts = {}
         for i in self.skips:
@@ -95,7 +95,7 @@ class Chain:
         self.widths = [o for o, _ in cfg.layer_shapes()]
         self.out_flat = torch.empty(chunk * cfg.out_dim, device=device)
         self.narrow = cfg.out_dim <= 8 and device.type == "cpu" and cfg.depth - 1 not in self.skips
-        self.last_rows = net.layers[-1].weight.detach().contiguous()  # (out, in), for the transposed product
+        self.last_rows = net.layers[-1].weight.detach().contiguous()  # type: ignore[operator]  # (out, in), for the transposed product
         self.relu = cfg.activation == "relu"
         self.kind = cfg.activation
         self.slope = cfg.slope
@@ -128,7 +128,7 @@ class Chain:
         layers = net.layers[1:]
         packed: list[torch.Tensor | None] = []
         for i, layer in enumerate(layers, start=1):
-            w = layer.weight.detach()
+            w = layer.weight.detach()  # type: ignore[operator]
             if i in net.config.skips:
                 w = w[:, : net.config.hidden]
             narrow = i == len(layers) and net.config.out_dim <= 8 and i not in net.config.skips

@@ -148,7 +148,8 @@ class FastPoser:
         self._soa = _attribute_major(self.canonical)
         small = [(k, self.layout.blocks[k]) for k in SMALL_BLOCKS if k in self.layout.blocks]
         self._small: dict[str, tuple[int, int]] = {}
-        cols, o = [], 0
+        cols: list[int] = []
+        o = 0
         for key, (c, w) in small:
             self._small[key] = (o, w)
             cols += range(c, c + w)
@@ -291,7 +292,7 @@ class FastPoser:
         for key, net in self.nets.items():
             t = net.code_term(zt)
             consts = chains[key].frame_constants(net.encode_code(zt)) if net.config.skips else None
-            terms[key] = (t, net.layers[0].bias.detach() + t, consts)
+            terms[key] = (t, net.layers[0].bias.detach() + t, consts)  # type: ignore[operator]
         return terms
 
     def _chunk_offsets(self, lane: _Lane, rows: RowSet, terms: dict, s: int, e: int,

@@ -16,6 +16,8 @@ moves centres, rotations, scales and turns the SH with the head (`sh.rotate_sh`)
 
 from __future__ import annotations
 
+from typing import TypeGuard
+
 import numpy as np
 
 from npga_core.camera.cameras import Camera
@@ -34,7 +36,7 @@ def pose_matrix(rotation: np.ndarray | None = None, translation: np.ndarray | No
                       None if scale is None else float(scale))
 
 
-def has_head_pose(seq: ExpressionSequence | None) -> bool:
+def has_head_pose(seq: ExpressionSequence | None) -> TypeGuard[ExpressionSequence]:
     """True when the sequence carries a head pose."""
     return seq is not None and seq.pose is not None
 

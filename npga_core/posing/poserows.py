@@ -4,6 +4,7 @@ attribute-major helpers used when offsets are applied (split out of fastpose.py;
 from __future__ import annotations
 
 from dataclasses import dataclass, field
+from typing import cast
 
 import numpy as np
 import torch
@@ -79,8 +80,8 @@ def _encoding_key(net: ConditionedMLP) -> tuple:
     for spec in c.specs:
         w = c.raw_width(spec)
         if spec.kind in PER_GAUSSIAN_INPUTS:
-            key.append((spec, tuple(net.input_shift[col : col + w].tolist()),
-                        tuple(net.input_scale[col : col + w].tolist())))
+            key.append((spec, tuple(net.input_shift[col : col + w].tolist()),  # type: ignore[index]
+                        tuple(net.input_scale[col : col + w].tolist())))  # type: ignore[index]
         col += w
     return tuple(key)
 
@@ -102,12 +103,14 @@ def _compose(c_unit: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
 
 def _attribute_major(canonical: dict[str, torch.Tensor | None]) -> dict[str, torch.Tensor]:
     """Canonical attributes with the small ones transposed to (width, N), the wide ones flattened (N, width)."""
-    soa = {k: canonical[k].t().contiguous() for k in ("means", "log_scales", "quats")}
+    present = cast(dict[str, torch.Tensor], canonical)  # every attribute but the latent is always there
+    soa = {k: present[k].t().contiguous() for k in ("means", "log_scales", "quats")}
     soa["unit_quats"] = _unit(soa["quats"].clone())
-    soa["opacity_logits"] = canonical["opacity_logits"].contiguous()
-    soa["sh"] = canonical["sh"].reshape(canonical["sh"].shape[0], canonical["sh"].shape[1] * 3)
-    if canonical.get("latent") is not None:
-        soa["latent"] = canonical["latent"]
+    soa["opacity_logits"] = present["opacity_logits"].contiguous()
+    soa["sh"] = present["sh"].reshape(present["sh"].shape[0], present["sh"].shape[1] * 3)
+    latent = canonical.get("latent")
+    if latent is not None:
+        soa["latent"] = latent
     return soa
 
 

@@ -25,6 +25,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 import torch
@@ -110,7 +111,7 @@ class PreviewModel:
                   "meta": np.frombuffer(meta.encode(), np.uint8)}
         if self.sensitivity is not None:
             arrays["sensitivity"] = self.sensitivity.astype(np.float32)
-        atomic_write(Path(path), lambda fh: np.savez(fh, **arrays))
+        atomic_write(Path(path), lambda fh: np.savez(fh, **arrays))  # type: ignore[arg-type]
 
     @staticmethod
     def load(path: str | Path, key: str, n: int) -> PreviewModel | None:
@@ -254,7 +255,7 @@ def _block_scales(poser: FastPoser, codes: np.ndarray, ref: torch.Tensor, rows: 
     ref_sub = ref.index_select(0, torch.from_numpy(sub.index))
     var = torch.zeros(poser.layout.width)
     for z in codes:
-        var += (poser.offsets(z, rows=sub) - ref_sub).square().mean(0)
+        var += (cast(torch.Tensor, poser.offsets(z, rows=sub)) - ref_sub).square().mean(0)
     scale = torch.ones(poser.layout.width)
     for c, w in poser.layout.blocks.values():
         v = float(var[c : c + w].sum()) / max(1, len(codes))
@@ -319,9 +320,9 @@ class ProbeNets:
     def offsets(self, z: np.ndarray, out: torch.Tensor) -> torch.Tensor:
         """Combined offsets (P, width) of the probes at z into `out`."""
         if self.precision == "fp32":
-            return self.poser.offsets(z, out=out, rows=self.rows)
+            return cast(torch.Tensor, self.poser.offsets(z, out=out, rows=self.rows))  # None only when cancelled
         terms = self.poser.code_terms(z)
-        first = self.rows.first
+        first = cast(dict[str, torch.Tensor], self.rows.first)
         step = self.poser._chunk_for(self.n)
 
         def body(lane, s: int) -> None:

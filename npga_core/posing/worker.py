@@ -11,6 +11,7 @@ import traceback
 from dataclasses import asdict, dataclass
 from multiprocessing import shared_memory
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -33,10 +34,17 @@ from npga_core.posing.messages import (
     peak_rss_mb,
 )
 
+if TYPE_CHECKING:
+    import torch
+
+    from npga_core.posing.bake import BakeStore
+    from npga_core.posing.fastpose import FastPoser
+    from npga_core.posing.preview import Previewer, PreviewFit
+
 
 @dataclass
 class _BakeJob:
-    store: object  # bake.BakeStore
+    store: BakeStore
     codes: np.ndarray
     status: BakeStatus
     started: float
@@ -75,10 +83,10 @@ class _Worker:
         self.views = [layout.views(b) for b in bufs]
         self.avatar = load_avatar(path)
         self.key = self.avatar.content_key()
-        self.poser = None
+        self.poser: FastPoser | None = None
         self.can_preview = False
-        self.previewer = None
-        self.fit = None
+        self.previewer: Previewer | None = None
+        self.fit: PreviewFit | None = None
         self.job: _BakeJob | None = None
         self.exact_ms: float | None = None
         self.preview_ms: float | None = None
@@ -197,7 +205,7 @@ class _Worker:
             return
         pv = self.previewer
         if mode != "exact" and pv is not None and pv.ready and (mode == "preview" or self._preview_pays()):
-            slot, timings = self._slot(), {}
+            slot, timings = self._slot(), cast(dict[str, float], {})
             t0 = time.perf_counter()
             pv.pose_into(z, self.views[slot], timings)
             timings["pose_total"] = self.preview_ms = (time.perf_counter() - t0) * 1e3
@@ -214,7 +222,7 @@ class _Worker:
 
     def _exact(self, req_id: int, z: np.ndarray, cancellable: bool) -> bool:
         """Exact pose into a slot; with `cancellable`, give up (False) when another message arrives."""
-        slot, timings = self._slot(), {}
+        slot, timings = self._slot(), cast(dict[str, float], {})
         t0 = time.perf_counter()
         if self.poser is None:
             posed = self.avatar.pose(z, timings=timings)
@@ -233,7 +241,7 @@ class _Worker:
         if self.can_preview and self.previewer is None:
             if self.exact_ms > self.opts.instant_ms:
                 self._start_preview()
-                self.previewer.set_base(z, self.base)
+                cast("Previewer", self.previewer).set_base(z, self.base)
             elif self.status["preview_model"] == "pending":
                 self._send_status(preview_model="idle")  # exact poses are fast enough for now
         return True
@@ -258,6 +266,7 @@ class _Worker:
         from npga_core.posing.preview import Previewer, PreviewFit, PreviewModel
 
         o, poser = self.opts, self.poser
+        assert poser is not None
         model = PreviewModel.load(self._preview_path(), self.key, poser.n) if o.fit_codes else None
         if model is not None:
             self.status["preview_model"] = "cached"
@@ -273,15 +282,17 @@ class _Worker:
     def _fit_step(self) -> None:
         from npga_core.posing.preview import Previewer
 
-        fit = self.fit
+        fit, poser = self.fit, self.poser
+        assert fit is not None and poser is not None
         if not fit.step(self._interrupted):
             self._send_status(preview_model=f"fitting {fit.done}/{fit.total}")
             return
         model, self.fit = fit.model, None
+        assert model is not None  # the fit finished
         model.key = self.key
-        old, self.previewer = self.previewer, Previewer(self.poser, model)
+        old, self.previewer = self.previewer, Previewer(poser, model)
         if old is not None and old.ready:
-            self.previewer.set_base(old.base_code, old.base)
+            self.previewer.set_base(cast(np.ndarray, old.base_code), cast("torch.Tensor", old.base))
         state = "fitted"
         if self.opts.write_cache:
             try:
@@ -324,17 +335,19 @@ class _Worker:
 
     def _bake_report(self) -> None:
         job = self.job
+        assert job is not None
         job.status.done = int(job.store.done.sum())
         job.status.seconds = time.perf_counter() - job.started
         job.status.finished = job.store.complete
         self._send_status(bake=asdict(job.status))
 
     def _bake_step(self) -> None:
-        job = self.job
+        job, poser = self.job, self.poser
+        assert job is not None and poser is not None
         store = job.store
         if not store.complete:
             slot = int(np.flatnonzero(~store.done)[0])
-            out = self.poser.offsets(job.codes[store.stored_frames[slot]], out=self.scratch, cancel=self._interrupted)
+            out = poser.offsets(job.codes[store.stored_frames[slot]], out=self.scratch, cancel=self._interrupted)
             if out is None:
                 return
             store.put(slot, out)
@@ -354,14 +367,14 @@ class _Worker:
         if not 0 <= frame < store.frames:
             self.res_q.put(ErrorReply(req_id, f"frame {frame} outside 0..{store.frames - 1}"))
             return
-        slot, timings = self._slot(), {}
+        slot, timings = self._slot(), cast(dict[str, float], {})
         t0 = time.perf_counter()
         try:
             store.offsets_into(frame, self.scratch)
         except ValueError:  # not baked yet: pose it exactly
             self._exact(req_id, job.codes[frame], cancellable=False)
             return
-        self.poser.apply_into(self.scratch, self.views[slot])
+        cast("FastPoser", self.poser).apply_into(self.scratch, self.views[slot])
         timings["pose_total"] = (time.perf_counter() - t0) * 1e3
         self._publish(req_id, slot, job.codes[frame], timings, preview=not store.exact(frame), frame=frame,
                       baked=True)

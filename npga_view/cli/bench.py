@@ -28,7 +28,7 @@ import tempfile
 import time
 from dataclasses import replace
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -150,7 +150,8 @@ def _exact_in_process(avatar, args, out: dict) -> FastPoser:
     runs, gemms = [], []
     for _ in range(max(5, args.repeat)):  # gemm and dynamics alternate, so that both see the same machine
         gemms.append(gemm_gflops(args.threads, repeat=2, device=gemm_device))
-        t, t0 = {}, time.perf_counter()
+        t: dict[str, float] = {}
+        t0 = time.perf_counter()
         poser.pose_into(z, dest, timings=t)
         t1 = time.perf_counter()
         poser.offsets(z, out=buf)  # F and G alone: what the roofline ratio is about
@@ -285,7 +286,7 @@ def _engine_run(path: str, avatar, codes: np.ndarray, fps: float, renderer: _Ren
             s = (0.7 * rng.standard_normal(ex.n_components)).astype(np.float32) if ex else None
             for _ in range(args.moves):
                 if ex is not None:
-                    s[drag % ex.n_components] += 1.0 / args.moves
+                    cast(np.ndarray, s)[drag % ex.n_components] += 1.0 / args.moves
                     z = ex.from_sliders(s)
                 else:
                     z = avatar.neutral_code()
@@ -337,7 +338,8 @@ def _engine_run(path: str, avatar, codes: np.ndarray, fps: float, renderer: _Ren
 def _live(eng, codes: np.ndarray, fps: float, seconds: float) -> float:
     """Frames shown per second when following the wall clock with exact poses (newest frame wins)."""
     start = time.perf_counter()
-    shown, requested = set(), None
+    shown: set[tuple] = set()
+    requested = None
     while time.perf_counter() - start < seconds:
         frame = int((time.perf_counter() - start) * fps) % len(codes)
         if frame != requested:
@@ -564,8 +566,8 @@ def run(args: argparse.Namespace) -> int:
             from npga_core.files.gha_synthetic import write_gha_folder
 
             targets.append((f"GHA synthetic {n // 1000}k", str(write_gha_folder(Path(tmp) / f"gha-{n}", n))))
-        for name, path in targets:
-            res = bench_avatar(name, path, args)
+        for name, target in targets:
+            res = bench_avatar(name, target, args)
             results.append(res)
             _print(res)
             sys.stdout.flush()

@@ -170,7 +170,8 @@ def run(peer: Path | None, width: int, height: int, frames: int, rounds: int, sc
         theirs = Peer(_Window(glfw, width, height, "GaussianSplattingViewer"), peer, posed, width, height)
         ours.frame(cams[0]), theirs.frame(cams[0])  # warm-up (shader compilation, first uploads)
         times: dict[str, list[float]] = {"ours": [], "peer": []}
-        points, parts = [], {"sort": [], "preprocess": [], "draw": []}
+        points: list[float] = []
+        parts: dict[str, list[float]] = {"sort": [], "preprocess": [], "draw": []}
         for _ in range(rounds):
             for cam in cams:
                 o = ours.frame(cam)

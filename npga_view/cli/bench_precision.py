@@ -8,6 +8,7 @@ import platform
 import time
 from concurrent.futures import ThreadPoolExecutor
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -155,7 +156,8 @@ def path_ratio(renderer, posed, scales: tuple[float, ...] = (1.0, 0.25), repeat:
     measured choice (`drawcost.PathCosts`) takes after these draws."""
     from npga_view.rendering.scheduler import scaled_camera
 
-    r, out = renderer.r, {}
+    r = renderer.r
+    out: dict[str, Any] = {}
     r.set_gaussians(posed)
     saved = r.use_points
     try:

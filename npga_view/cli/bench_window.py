@@ -25,7 +25,9 @@ import subprocess
 import tempfile
 import time
 import zlib
+from collections.abc import Sequence
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -33,6 +35,11 @@ from npga_view.actions import Bake
 from npga_view.rendering.draw_plan import Target
 from npga_view.rendering.renderer import camera_key
 from npga_view.rendering.scheduler import DrawScheduler, _Image
+
+if TYPE_CHECKING:
+    from npga_core.model.avatar import Avatar
+    from npga_core.model.expression import ExpressionSpace
+    from npga_core.posing.livelink import LiveLinkReceiver
 
 SIZE = (1360, 900)
 
@@ -102,7 +109,7 @@ def _exact(app) -> bool:
             and (eng is None or eng.pending is None))
 
 
-def _stats(values: list[float]) -> dict:
+def _stats(values: Sequence[float | None]) -> dict:
     v = [x for x in values if x is not None]
     if not v:
         return {"median": None, "p90": None, "n": 0}
@@ -162,7 +169,7 @@ def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, sec
     try:
         app.state.show_stats = False  # the overlay's figures change every frame: only the splats are watched
         app.open_avatar(avatar)
-        out["gaussians"] = len(app.avatar)
+        out["gaussians"] = len(cast("Avatar", app.avatar))
         w.until(lambda: int(app.read_window(viewport_only=True).max()) > 0, 120)
         out["first_pixels_s"] = time.perf_counter() - t_open
         w.until(lambda: _exact(app), 300)
@@ -203,7 +210,7 @@ def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, sec
         t0 = time.perf_counter()
         done = w.until(lambda: _exact(app), 120)
         out["orbit_exact_after_s"] = None if done is None else time.perf_counter() - t0
-        if sequence and app.avatar.dynamics is not None:
+        if sequence and cast("Avatar", app.avatar).dynamics is not None:
             app.open_sequence(sequence)
             out.update(_playback(app, w, seconds, baked=False))
             app.state.timeline.playing = False
@@ -241,7 +248,8 @@ def _synthetic(n: int, folder: Path) -> tuple[str, str]:
     path = folder / f"syn{n // 1000}k.npga"
     save_avatar(a, path)
     t = np.arange(200)
-    codes = np.stack([a.expression.from_sliders(np.array([2 * np.sin(i / 6), 2 * np.cos(i / 9)])) for i in t])
+    ex = cast("ExpressionSpace", a.expression)  # a synthetic avatar has one
+    codes = np.stack([ex.from_sliders(np.array([2 * np.sin(i / 6), 2 * np.cos(i / 9)])) for i in t])
     seq = folder / f"seq{n}.npzseq"
     ExpressionSequence(codes.astype(np.float32), 25.0).save(seq)
     return str(path), str(seq)
@@ -260,8 +268,8 @@ precision of the exact dynamics, alternating in the same run."""
         with tempfile.TemporaryDirectory() as tmp:
             cases = []
             if demo:
-                seq = DEMO_DIR / "sequences" / "talking.npzseq"
-                cases.append(("demo", str(seq) if seq.is_file() else None))
+                demo_seq = DEMO_DIR / "sequences" / "talking.npzseq"
+                cases.append(("demo", str(demo_seq) if demo_seq.is_file() else None))
             cases += [_synthetic(n, Path(tmp)) for n in gaussians]
             for avatar, seq in cases:
                 print(f"warm-up {avatar}: preview model {warm_up(avatar)}", flush=True)
@@ -339,7 +347,7 @@ def measure_live_link(avatar: str = "demo", samples: int = 12, seconds: float = 
         out["slider_changed_s"] = _stats(ref)
         if not app.live.start("127.0.0.1:0"):
             return {**out, "error": "; ".join(app.state.errors)}
-        addr = app.live.receiver.address
+        addr = cast("LiveLinkReceiver", app.live.receiver).address  # started
         jaw, blink = ARKIT_52.index("jawOpen"), ARKIT_52.index("eyeBlinkLeft")
         frame = [int(time.time() % 86400 * 60)]
 
@@ -363,7 +371,7 @@ def measure_live_link(avatar: str = "demo", samples: int = 12, seconds: float = 
             lat.append(changed)
         out["packet_changed_s"] = _stats(lat)
         w.until(lambda: _exact(app), 120)
-        c0 = dict(vars(app.live.receiver.counters))
+        c0 = dict(vars(cast("LiveLinkReceiver", app.live.receiver).counters))
         taken0, frames0, images = app.live.taken, app.frames, 0
         stop = threading.Event()
         sent = [0]
@@ -389,7 +397,7 @@ def measure_live_link(avatar: str = "demo", samples: int = 12, seconds: float = 
         dt = time.perf_counter() - t0
         for _ in range(3):
             w.step()
-        c = vars(app.live.receiver.counters)
+        c = vars(cast("LiveLinkReceiver", app.live.receiver).counters)
         out.update({"sent": sent[0], "sent_per_s": sent[0] / dt,
                     **{k: c[k] - c0[k] for k in ("received", "dropped", "late", "bad")},
                     "taken": app.live.taken - taken0, "images_per_s": images / dt,

@@ -12,7 +12,7 @@ import json
 import sys
 import time
 from pathlib import Path
-from typing import TYPE_CHECKING
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -27,6 +27,7 @@ RENDER_MODES = ("rgb", "depth", "alpha", "latent")
 INSPECT_MODES = ("features", "feature:K", "latent:K", "offset", "laplacian", "sensitivity", "opacity", "scale",
                  "points", "ellipsoids", "knn")
 LEGEND_HEIGHT = 64
+_Vec3 = tuple[float, float, float]
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
@@ -173,6 +174,7 @@ def _codes(args, avatar) -> tuple[np.ndarray | None, float, list[np.ndarray] | N
         raise RenderError(f"{source}: the avatar is static (no dynamics), it takes no expression codes")
     seq = load_sequence(source, basis=avatar.blendshapes)
     seq.check_dim(avatar.code_dim, source)
+    frames: range | list[int]
     codes, frames = seq.codes, range(len(seq))
     if args.frame is not None:
         if not 0 <= args.frame < len(codes):
@@ -252,10 +254,10 @@ def inspect_settings(args) -> InspectSettings:
             s.hist_attr, s.hist_range, s.hist_action = attr, parse_range(rng, f"--{action}"), action
     if args.clip_box is not None:
         v = _numbers(args.clip_box, 6, "--clip-box")
-        s.clip, s.clip_lo, s.clip_hi = "box", v[:3], v[3:]
+        s.clip, s.clip_lo, s.clip_hi = "box", cast(_Vec3, v[:3]), cast(_Vec3, v[3:])
     if args.clip_plane is not None:
         v = _numbers(args.clip_plane, 6, "--clip-plane")
-        s.clip, s.clip_point, s.clip_normal = "plane", v[:3], v[3:]
+        s.clip, s.clip_point, s.clip_normal = "plane", cast(_Vec3, v[:3]), cast(_Vec3, v[3:])
     if s.direction < 0:
         raise RenderError(f"--direction {args.direction}: directions count from 1")
     return s
@@ -385,7 +387,7 @@ class _Frames:
         s = self.settings
         notes = []
         if s.hist_action != "off":
-            lo, hi = s.hist_range
+            lo, hi = cast(tuple[float, float], s.hist_range)  # set with the action
             notes.append(f"{s.hist_attr} {_fmt(lo)}..{_fmt(hi)} {'only' if s.hist_action == 'filter' else 'bright'}")
         if s.clip == "box":
             notes.append("clipped to a box")
@@ -493,6 +495,7 @@ def _render(args) -> int:
 
     check_precision(getattr(args, "precision", "fp32"))
     avatar = load_avatar(args.avatar)
+    codes: np.ndarray | list | None
     codes, fps, poses = _codes(args, avatar)
     camera = _camera(args, avatar.cloud.means)
     cameras = None if poses is None else [posed_camera(camera, t) for t in poses]
@@ -521,6 +524,8 @@ def _render(args) -> int:
         return 0
 
     from npga_view.video import VideoWriter
+
+    assert codes is not None  # _check_output: a video needs --sequence or --timeline
 
     # H.264 MP4 at the sequence's (or --timeline's --fps) rate; odd sizes lose their last row/column (yuv420p)
     legend = LEGEND_HEIGHT if frames.inspecting and frames.legend else 0

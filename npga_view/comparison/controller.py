@@ -88,7 +88,7 @@ class CompareController:
         rgb = tuple(float(v) for v in a.rgb)
         if len(rgb) != 3 or not all(0.0 <= v <= 1.0 for v in rgb):
             raise ValueError(f"compare background must be three values in [0, 1], got {a.rgb!r}")
-        self.view.background = rgb  # type: ignore[assignment]
+        self.view.background = rgb
 
     # --- per UI frame ---------------------------------------------------------------------------------
     def frame(self, avatar: Avatar | None, version: object, code: np.ndarray | None, camera: Camera,

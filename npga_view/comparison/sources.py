@@ -6,6 +6,7 @@ from __future__ import annotations
 import threading
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 
@@ -66,7 +67,7 @@ class CompareSources:
         from npga_core.files.loading import load_sequence
         capture = load_capture(path)
         if not capture.views:
-            raise AvatarFileError(f"{shown(str(path))}: no views found in the capture")
+            raise AvatarFileError(path, "no views found in the capture")
         seq = load_sequence(sequence) if sequence else None
         self.capture, self.sequence = capture, seq
         self.sequence_path = Path(sequence) if sequence else None
@@ -143,7 +144,8 @@ class CompareSources:
         code_key = None if code is None else np.asarray(code, np.float32).tobytes()
         key = (version, self.b_version, id(self.capture), None if view is None else (view.frame, view.camera_id),
                camera_key(camera), code_key, tuple(background), use_cnn, roles, self.mask)
-        return Job(key, label, camera, tuple(background), use_cnn, (first, second), roles, view, codes,
+        rgb = cast(tuple[float, float, float], tuple(background))
+        return Job(key, label, camera, rgb, use_cnn, (first, second), roles, view, codes,
                    {r: avatars[r] for r in roles})
 
     # --- on the worker --------------------------------------------------------------------------------

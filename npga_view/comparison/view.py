@@ -21,12 +21,13 @@ import math
 import threading
 from concurrent.futures import Future, ThreadPoolExecutor
 from dataclasses import dataclass, field, replace
+from typing import cast
 
 import moderngl
 import numpy as np
 
 from npga_core.camera.cameras import Camera
-from npga_core.evaluation.compare import CompareSettings, compose
+from npga_core.evaluation.compare import CompareSettings, Mode, compose
 from npga_core.evaluation.metrics import Scores, composite_background, score
 from npga_core.model.avatar import Avatar
 from npga_core.model.gaussians import PosedGaussians
@@ -87,7 +88,7 @@ class CompareView:
 
     # --- settings -------------------------------------------------------------------------------------
     def set_mode(self, mode: str, t: float | None = None) -> None:
-        self.settings = replace(self.settings, mode=mode, t=self.settings.t if t is None else t)
+        self.settings = replace(self.settings, mode=cast(Mode, mode), t=self.settings.t if t is None else t)
         self._composed_key = None
 
     def set_position(self, t: float) -> None:

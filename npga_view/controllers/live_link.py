@@ -15,6 +15,7 @@ import math
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import TYPE_CHECKING, cast
 
 import numpy as np
 
@@ -22,6 +23,9 @@ from npga_core.files.arkit_takes import head_pose
 from npga_core.files.blendshape_names import ARKIT_52, NameMatch, match_names
 from npga_core.posing.livelink import DEFAULT_PORT, LiveLinkReceiver
 from npga_core.posing.smoothing import OneEuro
+
+if TYPE_CHECKING:
+    from npga_core.model.avatar import Avatar
 from npga_view import actions as A
 from npga_view.controllers.host import ViewerHost
 from npga_view.panels.info import AppInfo
@@ -126,7 +130,8 @@ class LiveLinkController:
         weights, t = got
         a = self.host.avatar
         basis = a.blendshapes if a is not None else None
-        if basis is None or basis.code_dim not in (a.code_dim, a.code_dim - a.condition_dim):
+        av = cast("Avatar", a)  # there is a basis only with an avatar
+        if basis is None or basis.code_dim not in (av.code_dim, av.code_dim - av.condition_dim):
             self.status = "no blendshape basis for this avatar"
             return
         if self._match is None or self._match[0] != id(basis):
@@ -150,7 +155,7 @@ class LiveLinkController:
             self._euro = OneEuro(max(tl.euro_min_cutoff, 1e-6), max(tl.euro_beta, 0.0))
             self._exp = None
         if tl.smoothing == "one_euro":
-            return self._euro.step(code, dt if dt > 0 else 1 / 60)
+            return cast(OneEuro, self._euro).step(code, dt if dt > 0 else 1 / 60)
         if tl.smoothing == "exponential":
             a = float(np.clip(tl.smooth_alpha, 1e-3, 1.0))
             self._exp = code.copy() if self._exp is None else a * code + (1 - a) * self._exp

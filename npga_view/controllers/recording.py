@@ -97,7 +97,9 @@ class Recorder:
             return None
         end = self._clock() - self._t0 if self._t0 is not None else 0.0
         self._queue.put((_STOP, end))
-        self._thread.join()
+        thread = self._thread
+        assert thread is not None  # started with the writer
+        thread.join()
         self._writer, self._thread = None, None
         if self._error is not None:
             self.error = str(self._error)

@@ -12,6 +12,7 @@ a CNN (and without h) are untouched.
 from __future__ import annotations
 
 import time
+from typing import cast
 
 import numpy as np
 
@@ -53,7 +54,7 @@ class RefineController:
             self._drop_latent()
             self._set_shown("splats")
             return False
-        bg = tuple(float(v) for v in st.background)
+        bg = cast(tuple[float, float, float], tuple(float(v) for v in st.background))
         key = (self.draws.shown_target, what, st.latent_view, st.latent_channel, bg)
         if self.renderer.latent_dim != self.refiner.latent_dim:  # nothing uploaded yet (or not this avatar's)
             self._set_shown("splats")
@@ -75,7 +76,9 @@ class RefineController:
         """The finished splat image on screen: premultiplied RGBA, rows top to bottom."""
         r = self.renderer
         w, h = r.image_size
-        return r._read(r._fbo, 0, w, h)
+        fbo = r._fbo
+        assert fbo is not None  # a splat image is on screen
+        return r._read(fbo, 0, w, h)
 
     @property
     def complete(self) -> bool:
@@ -131,9 +134,10 @@ class RefineController:
                     refiner.submit(key, self.renderer, camera, bg, rgb=rgb, latent=latent)
                     self._drop_latent()
                     return False
-                image = refiner.result(key)
-                if image is None:
+                result = refiner.result(key)
+                if result is None:
                     return False
+                image = result
                 info.cnn_ms = refiner.last_timings.get("cnn", 0.0)
                 info.timings["cnn"] = info.cnn_ms
         except (ValueError, RuntimeError) as e:

@@ -3,9 +3,11 @@ difference heatmap or side by side, with PSNR/SSIM(/LPIPS) of the view."""
 
 from __future__ import annotations
 
+from typing import cast
+
 from imgui_bundle import imgui
 
-from npga_core.evaluation.compare import MODES
+from npga_core.evaluation.compare import MODES, Mode
 from npga_view import actions as C
 from npga_view.comparison.controller import score_label
 from npga_view.comparison.snapshot import CompareInfo
@@ -67,7 +69,7 @@ class ComparePanel:
         changed, i = imgui.combo("Compare", pairs.index(info.pair), [PAIR_LABELS[p] for p in pairs])
         if changed:
             actions.append(C.SetComparePair(pairs[i]))
-        changed, i = imgui.combo("Show", modes.index(info.mode), [MODE_LABELS[m] for m in modes])
+        changed, i = imgui.combo("Show", modes.index(cast(Mode, info.mode)), [MODE_LABELS[m] for m in modes])
         if changed:
             actions.append(C.SetCompareMode(modes[i]))
         if info.mode in ("wipe", "blend"):

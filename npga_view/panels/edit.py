@@ -12,6 +12,7 @@ in the splat view (npga_view/controllers/editing.py). npga_view/controllers/edit
 from __future__ import annotations
 
 from pathlib import Path
+from typing import cast
 
 import numpy as np
 from imgui_bundle import imgui
@@ -23,7 +24,7 @@ from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import ViewerState
 
-TOOLS = ("rect", "lasso", "brush", "sphere", "box", "range")
+TOOLS: tuple[A.SelectToolName, ...] = ("rect", "lasso", "brush", "sphere", "box", "range")
 TOOL_LABELS = ("Rectangle", "Lasso", "Brush", "Sphere", "Box", "Range")
 WARN = imgui.ImVec4(1.0, 0.75, 0.3, 1.0)
 
@@ -45,8 +46,8 @@ class EditPanel:
         self.lo = [-0.05, -0.05, -0.05]
         self.hi = [0.05, 0.05, 0.05]
         self.attribute = 0
-        self.range = None
-        self.hist = None
+        self.range: tuple[str, float, float] | None = None
+        self.hist: tuple[tuple[int, int, str], np.ndarray, float, float] | None = None
         self.steps = 1
         self.opacity = 0.5
         self.tint = [1.0, 0.8, 0.8]
@@ -61,8 +62,8 @@ class EditPanel:
         self.within = False
         self.save_as = 'edited.npga'
         self.export = 'posed.ply'
-        self.confirm = None
-        self.autosave = None
+        self.confirm: tuple[str | None, bool, str] | None = None
+        self.autosave: tuple[str | None, Path | None] | None = None
 
     def draw(self, state: ViewerState, info: AppInfo) -> None:
         if not imgui.collapsing_header("Edit"):
@@ -83,8 +84,8 @@ class EditPanel:
     def _act(state: ViewerState, action: A.Action) -> None:
         state.actions.append(action)
 
-    def _mode(self) -> str:
-        return COMBINE_MODES[self.mode]
+    def _mode(self) -> A.CombineMode:
+        return cast(A.CombineMode, COMBINE_MODES[self.mode])
 
     def _status(self, state: ViewerState, s: EditSession) -> None:
         n, sel, hid = len(s), int(s.selection.sum()), int(s.hidden.sum())
@@ -99,7 +100,7 @@ class EditPanel:
         if self.autosave[1] is not None and fresh:
             imgui.text_colored(WARN, "Unsaved edits of this file were autosaved.")
             if imgui.button("Recover"):
-                self._act(state, A.RecoverEdits(key))
+                self._act(state, A.RecoverEdits(cast(str, key)))  # an autosave is looked for only with a key
                 self.autosave = None
             imgui.same_line()
             if imgui.button("Discard"):
@@ -174,6 +175,7 @@ class EditPanel:
         _, counts, lo, hi = self.hist
         imgui.plot_histogram("##hist", counts, graph_size=imgui.ImVec2(-1, 60))
         imgui.text_disabled(f"{lo:.4g} .. {hi:.4g}")
+        assert self.range is not None  # set with the first histogram
         _, a, b = self.range
         speed = max(hi - lo, 1e-6) / 300.0
         _, a, b = imgui.drag_float_range2("Range", a, b, speed, lo, hi, "%.4g")

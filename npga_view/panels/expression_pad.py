@@ -16,7 +16,7 @@ from npga_view.state import ViewerState
 DEFAULT = ("smile", "surprise", "angry", "sad")
 PAD_SIZE = 180.0
 
-Spec = tuple[str, object]  # ("named", name), ("preset", name) or ("frame", index)
+Spec = tuple[str, str | int]  # ("named", name), ("preset", name) or ("frame", index)
 
 
 def label(spec: Spec) -> str:
@@ -35,7 +35,9 @@ class ExpressionPad:
     # ---------------------------------------------------------------------------------------- corners
     def options(self, state: ViewerState, info: AppInfo) -> list[Spec]:
         """What a corner can be: the avatar's named expressions, the user's presets, the current frame."""
-        ex = info.avatar.expression
+        avatar = info.avatar
+        assert avatar is not None and avatar.expression is not None  # the pad shows only for such an avatar
+        ex = avatar.expression
         out: list[Spec] = [("named", n) for n in ex.named]
         out += [("preset", n) for n in state.presets if n not in ex.named]
         if info.sequence is not None:
@@ -48,6 +50,7 @@ class ExpressionPad:
             return None
         kind, value = spec
         ex = info.avatar.expression
+        code: np.ndarray | list[float] | None
         if kind == "named":
             code = ex.named.get(str(value))
         elif kind == "preset":
@@ -58,12 +61,14 @@ class ExpressionPad:
             code = None
         if code is None:
             return None
-        code = np.asarray(code, np.float32).reshape(-1)
-        return code if code.shape == (ex.dim,) and np.isfinite(code).all() else None
+        arr = np.asarray(code, np.float32).reshape(-1)
+        return arr if arr.shape == (ex.dim,) and np.isfinite(arr).all() else None
 
     def defaults(self, state: ViewerState, info: AppInfo) -> None:
         """Fill the corners for a newly opened avatar (its named expressions)."""
-        named = list(info.avatar.expression.named)
+        avatar = info.avatar
+        assert avatar is not None and avatar.expression is not None  # called for an avatar with expressions
+        named = list(avatar.expression.named)
         picks = [n for n in DEFAULT if n in named]
         picks += [n for n in named if n not in picks and n != "neutral"]
         picks += [n for n in named if n not in picks]
@@ -74,9 +79,10 @@ class ExpressionPad:
     def code(self, state: ViewerState, info: AppInfo) -> np.ndarray | None:
         """The blended code at the point, None while a corner is missing."""
         codes = [self.corner_code(c, state, info) for c in self.corners]
-        if any(c is None for c in codes):
+        present = [c for c in codes if c is not None]
+        if len(present) < len(codes):
             return None
-        return blend(np.stack(codes), self.u, self.v)
+        return blend(np.stack(present), self.u, self.v)
 
     def move(self, u: float, v: float, state: ViewerState, info: AppInfo) -> bool:
         """Put the point at (u, v) and drive the sliders with its code; False while a corner is missing."""
@@ -84,7 +90,9 @@ class ExpressionPad:
         z = self.code(state, info)
         if z is None:
             return False
-        state.sliders = info.avatar.expression.to_sliders(z).astype(np.float32)
+        avatar = info.avatar
+        assert avatar is not None and avatar.expression is not None  # a code needs them
+        state.sliders = avatar.expression.to_sliders(z).astype(np.float32)
         state.follow_sequence = False
         return True
 

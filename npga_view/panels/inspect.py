@@ -21,6 +21,8 @@ target to the posed centre of Gaussian `index`.
 
 from __future__ import annotations
 
+from typing import cast
+
 import numpy as np
 from imgui_bundle import imgui
 
@@ -60,6 +62,9 @@ def _combo(label: str, value: str, choices: tuple[str, ...] | list[str], labels=
 
 def _u32(rgb) -> int:
     return imgui.color_convert_float4_to_u32(imgui.ImVec4(float(rgb[0]), float(rgb[1]), float(rgb[2]), 1.0))
+
+
+_Vec3 = tuple[float, float, float]
 
 
 def _fmt(v: float) -> str:
@@ -183,6 +188,7 @@ def _legend(c: Colouring, s: InspectSettings) -> None:
 
 def _counts(ii: InspectInfo) -> None:
     c = ii.counts
+    assert c is not None  # called only with counts
     drawn = "-" if c.drawn is None else f"{c.drawn:,}"
     imgui.text(f"Gaussians: {c.total:,} total, {c.in_frustum:,} in view, {drawn} drawn")
     for name, total, frustum, d in c.parts:
@@ -198,7 +204,7 @@ def _histogram(s: InspectSettings, ii: InspectInfo | None, a, info: AppInfo) -> 
     if ii is None or ii.hist_counts is None:
         imgui.text_disabled("(no values)")
         return
-    edges = ii.hist_edges
+    edges = cast(np.ndarray, ii.hist_edges)  # present with the counts
     lo_all, hi_all = float(edges[0]), float(edges[-1])
     width = max(imgui.get_content_region_avail().x, 60.0)
     imgui.plot_histogram("##hist", ii.hist_counts.astype(np.float32), graph_size=imgui.ImVec2(width, 70))
@@ -232,14 +238,14 @@ def _clipping(s: InspectSettings) -> None:
     if s.clip == "box":
         _, lo = imgui.drag_float3("Min", list(s.clip_lo), 0.002)
         _, hi = imgui.drag_float3("Max", list(s.clip_hi), 0.002)
-        s.clip_lo, s.clip_hi = tuple(lo), tuple(hi)
+        s.clip_lo, s.clip_hi = cast(_Vec3, tuple(lo)), cast(_Vec3, tuple(hi))
         imgui.text_disabled("Gaussians outside the box are hidden.")
     elif s.clip == "plane":
         _, point = imgui.drag_float3("Point", list(s.clip_point), 0.002)
         _, normal = imgui.drag_float3("Normal", list(s.clip_normal), 0.01)
-        s.clip_point = tuple(point)
+        s.clip_point = cast(_Vec3, tuple(point))
         if np.linalg.norm(normal) > 0:
-            s.clip_normal = tuple(normal)
+            s.clip_normal = cast(_Vec3, tuple(normal))
         imgui.text_disabled("Gaussians behind the plane (against the normal) are hidden.")
 
 
@@ -296,7 +302,7 @@ def _record(rec: dict, s: InspectSettings) -> None:
             imgui.table_next_column()
             for side in ("canonical", "posed"):
                 value = rec[side][key]
-                imgui.text(_fmt(value) if np.isscalar(value) else _vec(value))
+                imgui.text(_fmt(cast(float, value)) if np.isscalar(value) else _vec(value))
         imgui.end_table()
     imgui.push_text_wrap_pos(0)
     imgui.text(f"f: {_vec(rec['features'])}")

@@ -4,6 +4,8 @@ Live Link stream (npga_view/panels/live_link.py)."""
 
 from __future__ import annotations
 
+from typing import cast
+
 from imgui_bundle import imgui
 
 from npga_core.errors import shown
@@ -108,7 +110,7 @@ def _bake(state: ViewerState, info: AppInfo) -> None:
         imgui.text_disabled("Not baked: playback is live." if tl.baked else "Not baked.")
         return
     if what == "error":
-        imgui.text_colored(imgui.ImVec4(1.0, 0.4, 0.4, 1.0), f"bake failed: {shown(st.error)}")
+        imgui.text_colored(imgui.ImVec4(1.0, 0.4, 0.4, 1.0), f"bake failed: {shown(cast(str, st.error))}")
         return
     label = f"{st.done}/{st.stored} frames"
     imgui.progress_bar(st.fraction, imgui.ImVec2(-1, 0), label)

@@ -16,10 +16,13 @@ import moderngl
 import numpy as np
 
 from npga_core.camera.cameras import Camera
-from npga_view.rendering.lines import LinePass
+from npga_view.rendering.lines import LinePass, Lines
 
 if TYPE_CHECKING:
+    from collections.abc import Mapping
+
     from npga_core.inspection.inspector import InspectFrame
+    from npga_core.model.gaussians import PosedGaussians
 
 PICK_THRESHOLD = 0.2  # alpha a Gaussian must reach at a pixel to be picked there
 
@@ -42,6 +45,38 @@ class _LatentJob:
 
 class AuxiliaryPasses:
     """Latent, id and coverage passes; see the module docstring."""
+
+    if TYPE_CHECKING:  # provided by `SplatRenderer`
+        ctx: moderngl.Context
+        max_targets: int
+        style: str
+        point_px: float
+        last_timings: dict[str, float]
+        _count: int
+        _latent_dim: int
+        _visible: int
+        _prepared: tuple | None
+        _buffers: dict[str, moderngl.Buffer]
+        _latent_progs: dict[int, tuple[moderngl.Program, moderngl.VertexArray]]
+        _latent_fbo: tuple[int, moderngl.Framebuffer, list[moderngl.Texture]] | None
+        _latent_job: _LatentJob | None
+        _id_prog: moderngl.Program
+        _id_vao: moderngl.VertexArray
+        _id_target: tuple[moderngl.Texture, moderngl.Framebuffer] | None
+        _lines: Lines | None
+
+        @staticmethod
+        def _load_shader(name: str, defines: Mapping[str, object] | None = None) -> str: ...
+        @staticmethod
+        def _next_slice(count: int, ms: float, budget_ms: float) -> int: ...
+        def _activate(self) -> None: ...
+        def _prepare(self, camera: Camera, flip_y: bool) -> None: ...
+        def _begin_pass(self, fbo: moderngl.Framebuffer, viewport: tuple[int, int, int, int]) -> None: ...
+        def _bind_splats(self, prog: moderngl.Program) -> None: ...
+        def _bind_latent(self, prog: moderngl.Program) -> None: ...
+        def _set_style(self, prog: moderngl.Program, camera: Camera) -> None: ...
+        def _read(self, fbo: moderngl.Framebuffer, attachment: int, width: int, height: int) -> np.ndarray: ...
+        def set_gaussians(self, posed: PosedGaussians) -> None: ...
 
     def _latent_program(self, targets: int) -> tuple[moderngl.Program, moderngl.VertexArray]:
         if targets not in self._latent_progs:
@@ -116,9 +151,9 @@ class AuxiliaryPasses:
             self._begin_pass(fbo, (0, 0, w, h))
             if job.next == 0:
                 fbo.clear(0.0, 0.0, 0.0, 0.0)
-            prog["u_viewport"].value = (float(w), float(h))
-            prog["u_latent_dim"].value = self._latent_dim
-            prog["u_first_channel"].value = first
+            prog["u_viewport"].value = (float(w), float(h))  # type: ignore[union-attr]
+            prog["u_latent_dim"].value = self._latent_dim  # type: ignore[union-attr]
+            prog["u_first_channel"].value = first  # type: ignore[union-attr]
             self._bind_splats(prog)
             self._bind_latent(prog)
             while job.next < self._visible:
@@ -126,7 +161,7 @@ class AuxiliaryPasses:
                     return None
                 count = self._visible - job.next if math.isinf(budget_ms) else min(self._visible - job.next, job.slice)
                 t0 = time.perf_counter()
-                prog["u_first"].value = job.next
+                prog["u_first"].value = job.next  # type: ignore[union-attr]
                 vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
                 if not math.isinf(budget_ms):  # a software GL renders lazily: time the slice itself
                     self.ctx.finish()
@@ -183,21 +218,23 @@ class AuxiliaryPasses:
             return
         prog = self._id_prog
         self._set_style(prog, camera)
-        prog["u_threshold"].value = float(threshold)
-        prog["u_first"].value = 0
+        prog["u_threshold"].value = float(threshold)  # type: ignore[union-attr]
+        prog["u_first"].value = 0  # type: ignore[union-attr]
         self._bind_splats(prog)
-        fbo.scissor = scissor
+        fbo.scissor = scissor  # type: ignore[assignment]
         try:
             self._id_vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=self._visible)
         finally:
-            fbo.scissor = None
+            fbo.scissor = None  # type: ignore[assignment]
 
     def render_ids(self, camera: Camera, threshold: float = PICK_THRESHOLD) -> np.ndarray:
         """(H, W) int64: per pixel the front-most Gaussian (by centre depth) whose alpha there, in the current
         `style`, is at least `threshold`; -1 where there is none. Rows top to bottom."""
         self._activate()
         self._ids_into(camera, threshold, None)
-        data = self._id_target[1].read(viewport=(0, 0, camera.width, camera.height), components=1, dtype="u4")
+        target = self._id_target
+        assert target is not None
+        data = target[1].read(viewport=(0, 0, camera.width, camera.height), components=1, dtype="u4")
         return np.frombuffer(data, np.uint32).reshape(camera.height, camera.width).astype(np.int64) - 1
 
     def pick(self, camera: Camera, x: float, y: float, threshold: float = PICK_THRESHOLD) -> int | None:
@@ -208,7 +245,9 @@ class AuxiliaryPasses:
             return None
         self._activate()
         self._ids_into(camera, threshold, (px, py, 1, 1))
-        data = self._id_target[1].read(viewport=(px, py, 1, 1), components=1, dtype="u4")
+        target = self._id_target
+        assert target is not None
+        data = target[1].read(viewport=(px, py, 1, 1), components=1, dtype="u4")
         value = int(np.frombuffer(data, np.uint32)[0])
         return value - 1 if value else None
 

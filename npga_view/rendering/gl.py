@@ -128,7 +128,7 @@ def create_headless_context(backend: str = "auto") -> moderngl.Context:
     errors = []
     if backend in ("auto", "egl"):
         try:
-            return _check_version(moderngl.create_standalone_context(require=REQUIRED_GL, backend="egl"), "EGL")
+            return _check_version(moderngl.create_standalone_context(require=REQUIRED_GL, backend="egl"), "EGL")  # type: ignore[arg-type]
         except Exception as exc:  # noqa: BLE001 - any failure means: try the next backend
             errors.append(f"EGL: {str(exc).strip().splitlines()[0] if str(exc).strip() else type(exc).__name__}")
     if backend in ("auto", "osmesa"):

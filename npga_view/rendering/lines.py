@@ -8,6 +8,8 @@ depth test: they are always on top.
 
 from __future__ import annotations
 
+from typing import Protocol
+
 import moderngl
 import numpy as np
 
@@ -23,6 +25,18 @@ def pack_rgba8(colours: np.ndarray) -> np.ndarray:
         c = np.concatenate([c, np.ones((len(c), 1), np.float32)], axis=1)
     rgba = np.ascontiguousarray(np.round(np.clip(c, 0.0, 1.0) * 255.0).astype(np.uint8))
     return rgba.view(np.uint32).reshape(len(c))
+
+
+class Lines(Protocol):
+    """What the renderers need of a line pass (`LinePass`, `renderer41.LinePass41`)."""
+
+    @property
+    def edge_count(self) -> int: ...
+    def set_positions(self, positions: np.ndarray) -> None: ...
+    def set(self, positions: np.ndarray, edges: np.ndarray, colours: np.ndarray) -> None: ...
+    def clear(self) -> None: ...
+    def draw(self, camera: Camera, flip_y: bool, near: float, far: float = 1000.0) -> None: ...
+    def release(self) -> None: ...
 
 
 class LinePass:
@@ -76,9 +90,9 @@ class LinePass:
         """Blend the lines into the current framebuffer (viewport and blend state set by the caller)."""
         if not self._edges:
             return
-        self._prog["u_view"].write(np.ascontiguousarray(camera.world_to_camera.astype(np.float32).T).tobytes())
+        self._prog["u_view"].write(np.ascontiguousarray(camera.world_to_camera.astype(np.float32).T).tobytes())  # type: ignore[union-attr]
         proj = camera.opengl_projection(near, far, flip_y).astype(np.float32)
-        self._prog["u_proj"].write(np.ascontiguousarray(proj.T).tobytes())
+        self._prog["u_proj"].write(np.ascontiguousarray(proj.T).tobytes())  # type: ignore[union-attr]
         self._buffers["positions"].bind_to_storage_buffer(6)
         self._buffers["edges"].bind_to_storage_buffer(7)
         self._buffers["colours"].bind_to_storage_buffer(8)

@@ -129,7 +129,9 @@ class LiveDetail:
                     self._cond.wait()
                 if self._stop:
                     return
-                (version, posed), self._request = self._request, None
+                request = self._request
+                assert request is not None
+                (version, posed), self._request = request, None
                 self._working = version
                 grouping, generation = self._grouping, self._generation
             t0 = time.perf_counter()

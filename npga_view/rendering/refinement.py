@@ -234,7 +234,9 @@ class Refiner:
         return out
 
     def _run(self, image: np.ndarray) -> np.ndarray:
-        return _run_traced(self._traced, self.device, image)
+        traced = self._traced
+        assert traced is not None
+        return _run_traced(traced, self.device, image)
 
     def latent_view(self, renderer: SplatRenderer, camera: Camera, background=(0.0, 0.0, 0.0), view: str = "pca",
                     channel: int = 0, alpha: np.ndarray | None = None, latent: np.ndarray | None = None) -> np.ndarray:
@@ -301,6 +303,7 @@ class Refiner:
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="npga-cnn")
         traced, device = self._traced, self.device
+        assert traced is not None
         halo = self.cnn.config.band_halo()  # None: the CNN needs the whole image at once (instance norm, upsampling)
         stop = threading.Event()
 
@@ -390,9 +393,9 @@ class Refiner:
         scaled = self._texture.size != (vp[2], vp[3])
         self._texture.filter = (moderngl.LINEAR, moderngl.LINEAR) if scaled else (moderngl.NEAREST, moderngl.NEAREST)
         self._texture.use(0)
-        self._program["u_image"].value = 0
-        self._program["u_background"].value = (0.0, 0.0, 0.0)
-        self._program["u_flip_y"].value = 1 if flip_y else 0
+        self._program["u_image"].value = 0  # type: ignore[union-attr]
+        self._program["u_background"].value = (0.0, 0.0, 0.0)  # type: ignore[union-attr]
+        self._program["u_flip_y"].value = 1 if flip_y else 0  # type: ignore[union-attr]
         self._vao.render(moderngl.TRIANGLES, vertices=3)
 
     def release(self) -> None:

@@ -55,8 +55,10 @@ import importlib.resources
 import math
 import re
 import time
+from collections.abc import Mapping
 from dataclasses import dataclass
 from pathlib import Path
+from typing import cast
 
 import moderngl
 import numpy as np
@@ -65,19 +67,20 @@ from npga_core.camera.cameras import Camera
 from npga_core.model.gaussians import PosedGaussians, sh_degree_from_count
 from npga_view.rendering.aux_passes import AuxiliaryPasses
 from npga_view.rendering.drawcost import PathCosts
-from npga_view.rendering.lines import LinePass
+from npga_view.rendering.lines import Lines
 from npga_view.rendering.sorting import sort_back_to_front, view_depths
 
 #: The GLSL sources: the repository's shaders/, installed as the package data `npga_view.shaders`.
 SHADER_DIR = Path(str(importlib.resources.files("npga_view.shaders")))
 NEAR = 0.01
 _GROUP = 128
+_Target = tuple[moderngl.Texture, moderngl.Framebuffer]  # a colour texture and its framebuffer
 _INCLUDE = re.compile(r'^#include\s+"([^"]+)"\s*$', re.MULTILINE)
 MODES = ("rgb", "depth", "alpha")
 STYLES = ("splats", "points", "ellipsoids")
 
 
-def load_shader(name: str, defines: dict[str, object] | None = None) -> str:
+def load_shader(name: str, defines: Mapping[str, object] | None = None) -> str:
     """GLSL source of shaders/`name` with `#include "file"` resolved and `defines` added after `#version`."""
     source = (SHADER_DIR / name).read_text()
     source = _INCLUDE.sub(lambda m: (SHADER_DIR / m.group(1)).read_text(), source)
@@ -157,7 +160,7 @@ class SplatRenderer(AuxiliaryPasses):
                                     fragment_shader=self._load_shader("splat_id.frag"))
         self._id_vao = ctx.vertex_array(self._id_prog, [])
         self._id_target: tuple[moderngl.Texture, moderngl.Framebuffer] | None = None
-        self._lines: LinePass | None = None
+        self._lines: Lines | None = None
         #: draw style: "splats", "points" or "ellipsoids" (see the module docstring)
         self.style = "splats"
         self.point_px = 2.0
@@ -365,15 +368,18 @@ class SplatRenderer(AuxiliaryPasses):
         if upload_ms is None:
             return
         t0 = time.perf_counter()
-        z = view_depths(self._means, camera.world_to_camera)
+        means = self._means
+        assert means is not None
+        z = view_depths(means, camera.world_to_camera)
         order = sort_back_to_front(z, NEAR, exact=self.exact_sort)
         t1 = time.perf_counter()
         self._buffers["order"].write(order)
         self._visible = int(order.shape[0])
         t2 = time.perf_counter()
         prog = self._preprocess
-        prog["u_view"].write(_mat4_uniform(camera.world_to_camera))
-        prog["u_proj"].write(_mat4_uniform(camera.opengl_projection(NEAR, 1000.0, flip_y)))
+        assert prog is not None
+        prog["u_view"].write(_mat4_uniform(camera.world_to_camera))  # type: ignore[union-attr]
+        prog["u_proj"].write(_mat4_uniform(camera.opengl_projection(NEAR, 1000.0, flip_y)))  # type: ignore[union-attr]
         prog["u_viewport"].value = (float(camera.width), float(camera.height))
         prog["u_focal"].value = (camera.fx, camera.fy)
         prog["u_tan_fov"].value = (camera.tan_half_fov_x, camera.tan_half_fov_y)
@@ -400,7 +406,7 @@ class SplatRenderer(AuxiliaryPasses):
         self.ctx.disable(moderngl.DEPTH_TEST | moderngl.CULL_FACE)
         self.ctx.enable(moderngl.BLEND)
         self.ctx.blend_func = moderngl.ONE, moderngl.ONE_MINUS_SRC_ALPHA
-        self.ctx.blend_equation = moderngl.FUNC_ADD
+        self.ctx.blend_equation = moderngl.FUNC_ADD  # type: ignore[assignment]
 
     # --- drawing -------------------------------------------------------------------------------
     def draw(self, camera: Camera, mode: str = "rgb", framebuffer: moderngl.Framebuffer | None = None,
@@ -433,7 +439,7 @@ class SplatRenderer(AuxiliaryPasses):
                             fits and self.use_points is None, self._visible if self._count else 0)
         self._job_camera, self._job_framebuffer = camera, framebuffer
         if clear is not None:
-            fbo = framebuffer if framebuffer is not None else self._targets[1][1]
+            fbo = framebuffer if framebuffer is not None else cast(_Target, self._targets[1])[1]
             fbo.clear(*clear, viewport=(0, 0, camera.width, camera.height))
 
     @property
@@ -458,8 +464,8 @@ class SplatRenderer(AuxiliaryPasses):
         if job is None:
             return True
         self._activate()
-        camera, external = self._job_camera, self._job_framebuffer
-        fbo = external if external is not None else self._targets[1][1]
+        camera, external = cast(Camera, self._job_camera), self._job_framebuffer
+        fbo = external if external is not None else cast(_Target, self._targets[1])[1]
         if not math.isinf(budget_ms):
             # a software GL renders lazily: work queued earlier (the window's last frame) would otherwise be
             # waited for in the first slice and be taken for the cost of splats
@@ -517,10 +523,10 @@ class SplatRenderer(AuxiliaryPasses):
             self.ctx.enable(moderngl.PROGRAM_POINT_SIZE)
             prog = self._points_prog
             self._bind_splats(prog)
-            prog["u_viewport"].value = (float(job.width), float(job.height))
-            prog["u_guard"].value = float(guard)
-            prog["u_first"].value = first
-            prog["u_mode"].value = 1 if job.mode == "depth" else 0
+            prog["u_viewport"].value = (float(job.width), float(job.height))  # type: ignore[union-attr]
+            prog["u_guard"].value = float(guard)  # type: ignore[union-attr]
+            prog["u_first"].value = first  # type: ignore[union-attr]
+            prog["u_mode"].value = 1 if job.mode == "depth" else 0  # type: ignore[union-attr]
             self._points_vao.render(moderngl.POINTS, vertices=count)
             self.ctx.disable(moderngl.PROGRAM_POINT_SIZE)
         else:
@@ -528,17 +534,17 @@ class SplatRenderer(AuxiliaryPasses):
             prog = self._splat_prog
             self._bind_splats(prog)
             self._set_style(prog, camera)
-            prog["u_first"].value = first
-            prog["u_mode"].value = 1 if job.mode == "depth" else 0
+            prog["u_first"].value = first  # type: ignore[union-attr]
+            prog["u_mode"].value = 1 if job.mode == "depth" else 0  # type: ignore[union-attr]
             self._splat_vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
 
     def _set_style(self, prog: moderngl.Program, camera: Camera) -> None:
         if self.style not in STYLES:
             raise ValueError(f"unknown style {self.style!r}; choose from {', '.join(STYLES)}")
-        prog["u_viewport"].value = (float(camera.width), float(camera.height))
-        prog["u_style"].value = STYLES.index(self.style)
-        prog["u_point_px"].value = float(self.point_px)
-        prog["u_min_opacity"].value = float(self.style_min_opacity)
+        prog["u_viewport"].value = (float(camera.width), float(camera.height))  # type: ignore[union-attr]
+        prog["u_style"].value = STYLES.index(self.style)  # type: ignore[union-attr]
+        prog["u_point_px"].value = float(self.point_px)  # type: ignore[union-attr]
+        prog["u_min_opacity"].value = float(self.style_min_opacity)  # type: ignore[union-attr]
 
     def _read(self, fbo: moderngl.Framebuffer, attachment: int, width: int, height: int) -> np.ndarray:
         data = fbo.read(viewport=(0, 0, width, height), components=4, dtype="f4", attachment=attachment)
@@ -552,7 +558,9 @@ class SplatRenderer(AuxiliaryPasses):
         """
         self.draw(camera, mode)
         t0 = time.perf_counter()
-        image = self._read(self._fbo, 0, camera.width, camera.height)
+        front = self._fbo
+        assert front is not None
+        image = self._read(front, 0, camera.width, camera.height)
         if mode == "rgb":
             bg = np.asarray(background, dtype=np.float32).reshape(3)
             out = image[..., :3] + (1.0 - image[..., 3:4]) * bg
@@ -577,7 +585,7 @@ class SplatRenderer(AuxiliaryPasses):
         scaled = tex.size != (vp[2], vp[3])  # a reduced-resolution image: upscale bilinearly
         tex.filter = (moderngl.LINEAR, moderngl.LINEAR) if scaled else (moderngl.NEAREST, moderngl.NEAREST)
         tex.use(0)
-        self._composite_prog["u_image"].value = 0
-        self._composite_prog["u_background"].value = tuple(float(v) for v in background)
-        self._composite_prog["u_flip_y"].value = 1 if flip_y else 0
+        self._composite_prog["u_image"].value = 0  # type: ignore[union-attr]
+        self._composite_prog["u_background"].value = tuple(float(v) for v in background)  # type: ignore[union-attr]
+        self._composite_prog["u_flip_y"].value = 1 if flip_y else 0  # type: ignore[union-attr]
         self._composite_vao.render(moderngl.TRIANGLES, vertices=3)

@@ -23,6 +23,8 @@ ends (`LinePass41`). Culled splats are not uploaded, so the sliced draw covers o
 from __future__ import annotations
 
 import time
+from collections.abc import Mapping
+from typing import cast
 
 import moderngl
 import numpy as np
@@ -39,7 +41,7 @@ TEXTURE_WIDTH = 4096
 MIN_ALPHA = 1.0 / 255.0
 
 
-def load_shader41(name: str, defines: dict[str, object] | None = None) -> str:
+def load_shader41(name: str, defines: Mapping[str, object] | None = None) -> str:
     """The 4.1 twin `shaders/gl41_<name>` of a shader of the 4.3 path (includes resolved as for the 4.3 path)."""
     return load_shader("gl41_" + name, defines)
 
@@ -63,7 +65,7 @@ class Columns:
 def _sh_colour(cols: Columns, sl: slice, dirs: tuple[np.ndarray, np.ndarray, np.ndarray]) -> list[np.ndarray]:
     """max(sum_k sh_k Y_k(d) + 0.5, 0) per channel: the basis of `npga_core.model.sh.sh_basis` in float32."""
     x, y, z = dirs
-    basis = [None]
+    basis: list[np.ndarray | None] = [None]
     if cols.degree >= 1:
         basis += [-SH_C1 * y, SH_C1 * z, -SH_C1 * x]
     if cols.degree >= 2:
@@ -78,7 +80,7 @@ def _sh_colour(cols: Columns, sl: slice, dirs: tuple[np.ndarray, np.ndarray, np.
     for ch in range(3):
         colour = np.float32(SH_C0) * cols.sh[sl, ch]
         for k in range(1, len(basis)):
-            colour += basis[k].astype(np.float32, copy=False) * cols.sh[sl, 3 * k + ch]
+            colour += cast(np.ndarray, basis[k]).astype(np.float32, copy=False) * cols.sh[sl, 3 * k + ch]
         out.append(np.maximum(colour + np.float32(0.5), np.float32(0.0)))
     return out
 
@@ -226,8 +228,8 @@ class LinePass41:
         if self._vao is None:
             self._vao = self.ctx.vertex_array(self._prog, [(self._positions, "3f", "in_position"),
                                                            (self._colours, "4f1", "in_colour")])
-        self._prog["u_view"].write(_mat4_uniform(camera.world_to_camera))
-        self._prog["u_proj"].write(_mat4_uniform(camera.opengl_projection(near, far, flip_y)))
+        self._prog["u_view"].write(_mat4_uniform(camera.world_to_camera))  # type: ignore[union-attr]
+        self._prog["u_proj"].write(_mat4_uniform(camera.opengl_projection(near, far, flip_y)))  # type: ignore[union-attr]
         self._vao.render(moderngl.LINES, vertices=2 * self._count)
 
     def release(self) -> None:
@@ -310,10 +312,12 @@ class SplatRenderer41(SplatRenderer):
         if upload_ms is None:
             return
         t0 = time.perf_counter()
-        z = view_depths(self._means, camera.world_to_camera)
+        means, columns = self._means, self._columns
+        assert means is not None and columns is not None
+        z = view_depths(means, camera.world_to_camera)
         order = sort_back_to_front(z, NEAR, exact=self.exact_sort)
         t1 = time.perf_counter()
-        splats, self._kept, self._oversize = preprocess(self._columns, order, camera, flip_y,
+        splats, self._kept, self._oversize = preprocess(columns, order, camera, flip_y,
                                                         self.max_point)
         t2 = time.perf_counter()
         if len(splats):
@@ -325,11 +329,11 @@ class SplatRenderer41(SplatRenderer):
 
     def _bind_splats(self, prog: moderngl.Program) -> None:
         self._textures["splats"].use(0)
-        prog["u_splats"].value = 0
+        prog["u_splats"].value = 0  # type: ignore[union-attr]
 
     def _bind_latent(self, prog: moderngl.Program) -> None:
         self._textures["latent"].use(1)
-        prog["u_latent"].value = 1
+        prog["u_latent"].value = 1  # type: ignore[union-attr]
 
     @property
     def drawn_count(self) -> int:
