@@ -68,6 +68,7 @@ def _serve() -> None:
     import cv2  # noqa: F401 - import the project and what its readers import lazily once, before forking
     import yaml  # noqa: F401
 
+    import npga_view.app  # noqa: F401,I001 - the viewer's cases (--session, --rig, config files) open it
     import npga_view.cli.main  # noqa: F401
     from npga_core.evaluation import capture  # noqa: F401
     from npga_core.files import gha, loading  # noqa: F401
