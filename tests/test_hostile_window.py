@@ -140,7 +140,7 @@ def test_window_with_an_avatar_of_0_gaussians(display, tmp_path, monkeypatch):
 
     zero, good = tmp_path / "zero.npga", tmp_path / "good.npga"
     save_avatar(make_synthetic_avatar(0, seed=3), zero)
-    save_avatar(make_synthetic_avatar(300, seed=4), good)
+    save_avatar(make_synthetic_avatar(300, seed=4, latent_dim=3, with_cnn=True), good)  # h and a CNN, as the demo
     app = ViewerApp(900, 700, vsync=False, threads=1, remember_recent=False)
     try:
         assert app.open_avatar(str(zero)), app.state.errors

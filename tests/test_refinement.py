@@ -359,3 +359,20 @@ def test_a_refinement_of_a_view_left_behind_is_cancelled():
     draws.shown_target = ("view 2",)  # the splat image of view 2 is finished, its refinement not yet
     assert ctl.present(None, None, (0, 0, 10, 10)) is False
     assert calls == ["cancel"] and ctl.info.shown == "splats (refining)"
+
+
+def test_an_avatar_of_0_gaussians_with_latent_features(ctx, camera, renderer):
+    """Deleting every Gaussian of an avatar with h (and a CNN) leaves 0 rows: the refiner takes it (its ranges of h
+    fall back to defaults) and the refined image of the empty view is the CNN of the background."""
+    from npga_view.rendering.refinement import Refiner
+
+    av = make_synthetic_avatar(0, latent_dim=3, with_cnn=True, seed=1)
+    r = Refiner(ctx)
+    try:
+        r.set_avatar(av)  # raised ValueError (the min of an empty array) before
+        assert r.latent_dim == 3 and r.has_cnn
+        renderer.set_gaussians(av.pose(None))
+        out = r.image_for(renderer, camera, BG, True, "off")
+        assert out is not None and out.shape == (H, W, 3) and np.isfinite(out).all()
+    finally:
+        r.release()

@@ -196,8 +196,8 @@ class Refiner:
             h = np.asarray(latent, np.float64)
             if len(h) >= 2:
                 self._pca = FeaturePCA.fit(h)
-            self._ranges = [robust_range(h[:, k], symmetric=bool(h[:, k].min() < 0.0 < h[:, k].max()))
-                            for k in range(self.latent_dim)]
+            self._ranges = [robust_range(h[:, k], symmetric=bool(len(h) and h[:, k].min() < 0.0 < h[:, k].max()))
+                            for k in range(self.latent_dim)]  # (an avatar of 0 Gaussians: default ranges)
 
     @property
     def has_cnn(self) -> bool:

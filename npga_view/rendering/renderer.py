@@ -331,7 +331,7 @@ class SplatRenderer(AuxiliaryPasses):
         self._buffer("order", size=n * 4)
         self._buffer("counter", size=8)
         if posed.latent is not None:
-            latent = np.ascontiguousarray(posed.latent, dtype=np.float32).reshape(n, -1)
+            latent = np.ascontiguousarray(posed.latent, dtype=np.float32).reshape(n, np.shape(posed.latent)[-1])
             self._latent_dim = latent.shape[1]
             self._buffer("latent", latent)
         else:

@@ -295,7 +295,7 @@ class SplatRenderer41(SplatRenderer):
         self._columns = Columns(posed)
         self._texture("splats", 4 * n)
         if posed.latent is not None:
-            latent = np.asarray(posed.latent, dtype=np.float32).reshape(n, -1)
+            latent = np.asarray(posed.latent, dtype=np.float32).reshape(n, np.shape(posed.latent)[-1])
             self._latent_dim = latent.shape[1]
             per = -(-self._latent_dim // 4)
             padded = np.zeros((n, 4 * per), np.float32)
