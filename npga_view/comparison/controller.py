@@ -9,7 +9,6 @@ from __future__ import annotations
 import threading
 from collections.abc import Callable
 from concurrent.futures import Future, ThreadPoolExecutor
-from dataclasses import replace
 
 import moderngl
 import numpy as np
@@ -78,8 +77,7 @@ class CompareController:
         self.view.set_mode(a.mode)
 
     def _scale(self, a: C.SetCompareScale) -> None:
-        self.view.settings = replace(self.view.settings, vmax=float(a.vmax))
-        self.view.set_position(self.view.settings.t)  # re-compose
+        self.view.set_scale(a.vmax)
 
     def _cnn(self, a: C.SetCompareCnn) -> None:
         self.view.use_cnn = bool(a.on)

@@ -59,6 +59,8 @@ class CompareSources:
         self.frame_index = 0
         self.camera_index = 0
         self.mask = "auto"
+        self._frames: list[int] = []  # the capture's frames and cameras, sorted once when it opens (asked for
+        self._cameras: list[str] = []  # several times a UI frame)
         self._posed: dict[str, tuple[tuple, PosedGaussians]] = {}  # role -> (avatar, version, code), its pose
 
     # --- opening --------------------------------------------------------------------------------------
@@ -69,6 +71,7 @@ class CompareSources:
         if not capture.views:
             raise AvatarFileError(path, "no views found in the capture")
         seq = load_sequence(sequence) if sequence else None
+        self._frames, self._cameras = capture.frames, capture.cameras  # (before the capture: read by the UI)
         self.capture, self.sequence = capture, seq
         self.sequence_path = Path(sequence) if sequence else None
         self.frame_index = self.camera_index = 0
@@ -79,6 +82,7 @@ class CompareSources:
 
     def close_capture(self) -> None:
         self.capture = self.sequence = self.sequence_path = None
+        self._frames, self._cameras = [], []
 
     def set_b(self, avatar: Avatar | None, name: str = "") -> None:
         """The second avatar (None: none)."""
@@ -88,11 +92,11 @@ class CompareSources:
     # --- choice ---------------------------------------------------------------------------------------
     @property
     def frames(self) -> list[int]:
-        return [] if self.capture is None else self.capture.frames
+        return self._frames
 
     @property
     def cameras(self) -> list[str]:
-        return [] if self.capture is None else self.capture.cameras
+        return self._cameras
 
     def step(self, frames: int = 0, cameras: int = 0) -> None:
         """Move to another frame and/or camera of the capture (wrapping)."""
@@ -124,23 +128,22 @@ class CompareSources:
         if avatar is None or (self.avatar_b is None and "b" in (first, second)):
             return None
         view = None
-        codes: dict[str, np.ndarray | None] = {}
-        label = ""
         if "capture" in (first, second):
             cur = self.current
             if self.capture is None or cur is None or cur not in self.capture.views:
                 return None
             view = self.capture.views[cur]
             camera = view.camera
-            found, fc = frame_code(self.sequence, self.frames, cur[0])
-            code = fc if self.sequence is not None and found else (None if self.sequence is not None else code)
+            _, fc = frame_code(self.sequence, self.frames, cur[0])
+            if self.sequence is not None:  # the frame's own code (None without one), else the window's
+                code = fc
             label = f"frame {cur[0]}, camera {shown(cur[1])}"
         else:
             label = "A vs B, window camera"
         roles = tuple(r for r in ("a", "b") if r in (first, second) or (r == "b" and self.avatar_b is not None
                                                                          and view is not None))
         avatars = {"a": avatar} if self.avatar_b is None else {"a": avatar, "b": self.avatar_b}
-        codes = {r: code for r in roles}
+        codes: dict[str, np.ndarray | None] = {r: code for r in roles}
         code_key = None if code is None else np.asarray(code, np.float32).tobytes()
         key = (version, self.b_version, id(self.capture), None if view is None else (view.frame, view.camera_id),
                camera_key(camera), code_key, tuple(background), use_cnn, roles, self.mask)

@@ -74,6 +74,7 @@ class CompareView:
         self._renderers: dict[str, SplatRenderer] = {}
         self._uploaded: dict[str, PosedGaussians] = {}  # what each renderer holds (not uploaded again)
         self._refiners: dict[str, Refiner] = {}
+        self._refined: dict[str, Avatar] = {}  # the avatar each refiner was set to (set again only for another)
         self._presenter: Refiner | None = None
         self._job: Job | None = None
         self._future: Future | None = None
@@ -95,6 +96,11 @@ class CompareView:
         """The wipe divider / blend weight, clamped to [0, 1]."""
         t = float(t) if math.isfinite(t) else 0.5
         self.settings = replace(self.settings, t=min(max(t, 0.0), 1.0))
+        self._composed_key = None
+
+    def set_scale(self, vmax: float) -> None:
+        """The difference heatmap's top."""
+        self.settings = replace(self.settings, vmax=float(vmax))
         self._composed_key = None
 
     def set_pair(self, pair: str) -> None:
@@ -161,9 +167,9 @@ class CompareView:
         f = self._refiners.get(role)
         if f is None:
             f = self._refiners[role] = Refiner(self.ctx, self._device)
-        if f.cnn is None or getattr(f, "_for", None) is not avatar:
+        if self._refined.get(role) is not avatar:
             f.set_avatar(avatar)
-            f._for = avatar  # type: ignore[attr-defined]
+            self._refined[role] = avatar
         return f
 
     def _draw(self, budget_ms: float) -> bool:
@@ -307,7 +313,7 @@ class CompareView:
             f.release()
         if self._presenter is not None:
             self._presenter.release()
-        self._renderers, self._refiners, self._presenter, self._uploaded = {}, {}, None, {}
+        self._renderers, self._refiners, self._presenter, self._uploaded, self._refined = {}, {}, None, {}, {}
 
 
 def _read_front(ctx: moderngl.Context, renderer: SplatRenderer, camera: Camera, background) -> np.ndarray:
