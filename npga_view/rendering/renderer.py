@@ -139,11 +139,15 @@ class SplatRenderer(AuxiliaryPasses):
         self.max_targets = min(8, int(ctx.info["GL_MAX_DRAW_BUFFERS"]))
         self.max_ssbo_bytes = int(ctx.info.get("GL_MAX_SHADER_STORAGE_BLOCK_SIZE") or 0)
         self._preprocess = self._build_preprocess()
+        fast = {"SPLATS_ONLY": 1}  # the colour pass of the "splats" style: no style branches (splat.frag)
         self._splat_prog = ctx.program(vertex_shader=self._load_shader("splat.vert"),
-                                       fragment_shader=self._load_shader("splat.frag"))
+                                       fragment_shader=self._load_shader("splat.frag", fast))
         self._splat_vao = ctx.vertex_array(self._splat_prog, [])
+        self._style_prog = ctx.program(vertex_shader=self._load_shader("splat.vert"),
+                                       fragment_shader=self._load_shader("splat.frag"))
+        self._style_vao = ctx.vertex_array(self._style_prog, [])
         self._points_prog = ctx.program(vertex_shader=self._load_shader("splat_points.vert"),
-                                        fragment_shader=self._load_shader("splat.frag"))
+                                        fragment_shader=self._load_shader("splat.frag", fast))
         self._points_vao = ctx.vertex_array(self._points_prog, [])
         #: largest GL point size; splats of up to this size may be drawn as points (`use_points`)
         self.max_point = float(ctx.info["GL_POINT_SIZE_RANGE"][1])
@@ -293,7 +297,8 @@ class SplatRenderer(AuxiliaryPasses):
         if self._lines is not None:
             self._lines.release()
             self._lines = None
-        for obj in (self._splat_vao, self._splat_prog, self._points_vao, self._points_prog, self._id_vao,
+        for obj in (self._splat_vao, self._splat_prog, self._style_vao, self._style_prog, self._points_vao,
+                    self._points_prog, self._id_vao,
                     self._id_prog, self._composite_vao, self._composite_prog, self._preprocess):
             if obj is not None:
                 obj.release()
@@ -531,12 +536,13 @@ class SplatRenderer(AuxiliaryPasses):
             self.ctx.disable(moderngl.PROGRAM_POINT_SIZE)
         else:
             self._begin_pass(fbo, (0, 0, job.width, job.height))
-            prog = self._splat_prog
+            styled = self.style != "splats"
+            prog, vao = (self._style_prog, self._style_vao) if styled else (self._splat_prog, self._splat_vao)
             self._bind_splats(prog)
             self._set_style(prog, camera)
             prog["u_first"].value = first  # type: ignore[union-attr]
             prog["u_mode"].value = 1 if job.mode == "depth" else 0  # type: ignore[union-attr]
-            self._splat_vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
+            vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
 
     def _set_style(self, prog: moderngl.Program, camera: Camera) -> None:
         if self.style not in STYLES:
