@@ -33,6 +33,7 @@ from npga_view.controllers.posing import PoseController
 from npga_view.controllers.recording import Recorder
 from npga_view.controllers.refining import RefineController
 from npga_view.controllers.sequence_codes import SequenceCodes
+from npga_view.frame_profile import FrameProfile
 from npga_view.imgui_glfw import glfw, imgui
 from npga_view.inspection_cache import InspectionCache
 from npga_view.panels import Panels
@@ -97,6 +98,7 @@ class ViewerApp:
         self._last_t = time.perf_counter()
         self._fps_t: list[float] = []
         self.frames = 0
+        self.profile = FrameProfile()  # wall time per section of the UI frames (stats overlay, bench)
         self.should_close = False
         # controllers, each built after what it is handed
         self.edits = EditController(self)
@@ -313,7 +315,10 @@ class ViewerApp:
         and the CNN need."""
         window = self.window
         assert window is not None
+        profile = self.profile
+        profile.start()
         window.begin_frame(self.idle_wait_s if self._was_quiet else 0.0)
+        profile.mark("events")
         now = time.perf_counter()
         dt, self._last_t = now - self._last_t, now
         self._fps_t = [t for t in self._fps_t if now - t < 1.0] + [now]
@@ -324,18 +329,25 @@ class ViewerApp:
         self._run_actions()
         self.edits.after_actions()
         self.edits.tick(dt)
+        profile.mark("panels")
         self.live.update()  # the newest packet, asked for in this same frame
         self.poses.update(dt)
         if self._posed is not None and self.inspection.stale(self.state.inspect, self.current_camera):
             self.show(self._posed)  # the Inspect settings (or, for depth colouring, the camera) changed
+        profile.mark("dynamics")
         window.clear()
         self._draw_splats()
+        profile.mark("splats")
         self._publish_info()
+        self.info.frame_profile = profile.line()
         if self.state.show_stats:
             for panel in self.panels.overlays:  # after drawing, so that they report this frame's image
                 panel.draw(self.state, self.info)
         self.recorder.frame()
+        profile.mark("overlay")
         window.end_frame()
+        profile.mark("present")
+        profile.end()
         self.frames += 1
         self._was_quiet = self._quiet() and not self.live.busy()
         if window.close_requested():

@@ -20,7 +20,7 @@ void main() {
     v_conic = s.conic.xyz;
     v_feature = u_mode == 1 ? vec3(s.centre.z) : s.feature.rgb;
     v_index = uint(s.conic.w + 0.5);
-    gl_PointSize = point_size(s.axes);
+    gl_PointSize = s.feature.w;  // point_side (pre-pass)
     vec2 extended = u_viewport + 2.0 * u_guard;
     gl_Position = vec4((s.centre.xy + u_guard) / extended * 2.0 - 1.0, 0.0, 1.0);
 }

@@ -10,7 +10,7 @@ struct Splat {
     vec4 centre;   // xy: centre in window pixels; z: camera-space depth; w: opacity (0 = culled)
     vec4 axes;     // xy, zw: the two half-axes of the quad in window pixels (eigenvectors * sqrt(eigenvalue) * r)
     vec4 conic;    // xyz: inverse 2D covariance (a, b, c) in window pixels; w unused
-    vec4 feature;  // rgb: colour from SH; w unused
+    vec4 feature;  // rgb: colour from SH; w: side of the GL point that holds the splat (point_side)
 };
 
 // alpha of a Gaussian at offset d (window pixels) from its centre, as 3DGS renderCUDA (-1 when skipped)
@@ -42,10 +42,11 @@ float style_alpha(vec2 d, vec3 conic, float opacity, int style, float point_px, 
     return splat_alpha(d, conic, opacity);
 }
 
-// Side of the screen-aligned square that holds a splat's oriented quad (half-axes ax1 = axes.xy, ax2 = axes.zw),
-// plus one pixel so that rounding never loses a pixel centre the quad covers: drawn as a GL point of this size,
-// a splat produces the same fragments as its quad (the extra pixels fail the 1/255 alpha test).
-float point_size(vec4 axes) {
-    vec2 half_box = abs(axes.xy) + abs(axes.zw);
+// Side of the screen-aligned square that holds a splat's ellipse at the alpha = 1/255 radius r (its bounding box
+// has the half-extents r sqrt(cov_xx), r sqrt(cov_yy)), plus one pixel so that rounding never loses a pixel centre
+// inside the ellipse: drawn as a GL point of this size, a splat keeps the same fragments as its quad (every other
+// pixel fails the 1/255 alpha test). The box of the ellipse, not of its quad: up to half the area for a splat
+// turned 45 degrees.
+float point_side(vec2 half_box) {
     return 2.0 * max(half_box.x, half_box.y) + 1.0;
 }

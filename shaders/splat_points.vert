@@ -31,7 +31,7 @@ void main() {
         gl_PointSize = 1.0;
         return;
     }
-    gl_PointSize = point_size(s.axes);
+    gl_PointSize = s.feature.w;  // point_side (pre-pass)
     vec2 extended = u_viewport + 2.0 * u_guard;
     gl_Position = vec4((s.centre.xy + u_guard) / extended * 2.0 - 1.0, 0.0, 1.0);
 }

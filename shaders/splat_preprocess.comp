@@ -130,7 +130,8 @@ void main() {
     splats[i].centre = vec4(centre, t.z, opacity);
     splats[i].axes = vec4(ax1, ax2);
     splats[i].conic = vec4(c / det, -b / det, a / det, 0.0);
-    splats[i].feature = vec4(sh_colour(i, mean), 0.0);
+    float side = point_side(half_box);
+    splats[i].feature = vec4(sh_colour(i, mean), side);
     atomicAdd(drawn_count, 1u);
-    if (point_size(vec4(ax1, ax2)) > u_max_point) atomicAdd(oversize_count, 1u);
+    if (side > u_max_point) atomicAdd(oversize_count, 1u);
 }

@@ -48,6 +48,41 @@ def test_points_path_equals_quads(renderer, posed):
     np.testing.assert_array_equal(points, quads)
 
 
+@pytest.mark.parametrize("path", ["4.3", "4.1"])
+def test_points_of_turned_elongated_splats_equal_quads(ctx, path):
+    """A GL point holds the bounding box of a splat's ellipse, not of its quad (splat_common.glsl point_side):
+    thin opaque splats turned 0-90 degrees in the image, drawn as points, keep every pixel of the quad path, on
+    both GL paths; the side is that of the ellipse's box (at 45 degrees 15 % smaller than the quad's box here)."""
+    from npga_core.camera.cameras import look_at
+    from npga_view.rendering.renderer41 import SplatRenderer41
+
+    angles = np.radians(np.arange(0.0, 91.0, 15.0))
+    n = len(angles)
+    means = np.stack([np.linspace(-0.3, 0.3, n), np.zeros(n), np.zeros(n)], 1).astype(np.float32)
+    quats = np.stack([np.cos(angles / 2), np.zeros(n), np.zeros(n), np.sin(angles / 2)], 1).astype(np.float32)  # z
+    scales = np.tile(np.float32([0.03, 0.004, 0.004]), (n, 1))
+    sh = np.zeros((n, 1, 3), np.float32)
+    sh[:, 0] = 1.0
+    posed = PosedGaussians(means, quats, scales, np.full(n, 0.98, np.float32), sh)
+    cam = look_at((0.0, 0.0, 1.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 60.0, 320, 120)
+    r = (SplatRenderer41 if path == "4.1" else SplatRenderer)(ctx, 64, 64)
+    try:
+        r.set_gaussians(posed)
+        r.use_points = False
+        quads = r.render(cam)
+        r.use_points = True
+        points = r.render(cam)
+        assert r.last_timings["points"] == 1.0 and quads.max() > 0.5
+        np.testing.assert_array_equal(points, quads)
+        if path == "4.3":
+            sp = np.frombuffer(r._buffers["splats"].read(size=n * 64), np.float32).reshape(n, 16)
+            quad_box = 2 * np.maximum(np.abs(sp[:, 4]) + np.abs(sp[:, 6]), np.abs(sp[:, 5]) + np.abs(sp[:, 7])) + 1
+            turned = int(np.argmin(np.abs(angles - np.pi / 4)))
+            assert np.all(sp[:, 15] <= quad_box + 1e-3) and sp[turned, 15] < 0.9 * quad_box[turned]
+    finally:
+        r.release()
+
+
 def test_oversize_splats_fall_back_to_quads(ctx, posed):
     """A splat larger than the largest GL point is drawn as a quad: the image still equals the quad path's."""
     big = PosedGaussians(posed.means.copy(), posed.quats.copy(), posed.scales.copy(), posed.opacities.copy(),

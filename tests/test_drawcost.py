@@ -12,17 +12,17 @@ from npga_view.rendering.renderer import SplatRenderer
 
 def test_unmeasured_sizes_follow_the_prior_then_the_cheaper_path():
     costs = PathCosts()
-    assert costs.choose(240, 225) is True and costs.choose(960, 900) is False  # the prior cross-over
-    assert 240 * 225 < PRIOR_PIXELS < 960 * 900
-    costs.record(960, 900, False, 200.0, 80_000)
-    assert costs.choose(960, 900) is True  # the other path once, to compare
-    costs.record(960, 900, True, 300.0, 80_000)
-    picks = [costs.choose(960, 900) for _ in range(3 * EXPLORE)]
+    assert costs.choose(240, 225) is True and costs.choose(2560, 1440) is False  # the prior
+    assert 1360 * 900 < PRIOR_PIXELS < 2560 * 1440  # cross-over
+    costs.record(2560, 1440, False, 200.0, 80_000)
+    assert costs.choose(2560, 1440) is True  # the other path once, to compare
+    costs.record(2560, 1440, True, 300.0, 80_000)
+    picks = [costs.choose(2560, 1440) for _ in range(3 * EXPLORE)]
     assert picks.count(False) >= 3 * EXPLORE - 3 and picks.count(True) >= 2  # cheaper quads, points re-measured
-    costs.record(960, 900, True, 100.0, 80_000)
-    costs.record(960, 900, True, 100.0, 80_000)  # points became cheaper (an average of the measurements)
-    assert [costs.choose(960, 900) for _ in range(EXPLORE)].count(True) >= EXPLORE - 1
-    assert costs.bucket(960, 900) == costs.bucket(940, 900) != costs.bucket(480, 450)
+    costs.record(2560, 1440, True, 100.0, 80_000)
+    costs.record(2560, 1440, True, 100.0, 80_000)  # points became cheaper (an average of the measurements)
+    assert [costs.choose(2560, 1440) for _ in range(EXPLORE)].count(True) >= EXPLORE - 1
+    assert costs.bucket(2560, 1440) == costs.bucket(2520, 1440) != costs.bucket(1280, 720)
 
 
 def test_renderer_measures_both_paths_and_keeps_the_image(ctx):

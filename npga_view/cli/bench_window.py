@@ -32,6 +32,7 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from npga_view.actions import Bake
+from npga_view.frame_profile import SECTIONS
 from npga_view.rendering.draw_plan import Target
 from npga_view.rendering.renderer import camera_key
 from npga_view.rendering.scheduler import DrawScheduler, _Image
@@ -74,11 +75,15 @@ class _Watcher:
         self.app = app
         self.last = None
         self.last_changed = False
+        self.frames: list[dict[str, float]] | None = None  # while recording: the UI frames' sections + read-back
 
     def step(self) -> bool:
         """One UI frame; True if the view's pixels changed."""
         self.app.step()
+        t0 = time.perf_counter()
         img = self.app.read_window(viewport_only=True)
+        if self.frames is not None:
+            self.frames.append({**self.app.profile.last, "readback": (time.perf_counter() - t0) * 1e3})
         fp = (zlib.crc32(img[::4, ::4].tobytes()), int(img.max()))
         changed = fp != self.last
         self.last = fp
@@ -93,6 +98,17 @@ class _Watcher:
             if cond():
                 return time.perf_counter() - t0
         return None
+
+
+def _profiled(w: _Watcher, key: str, dt: float) -> dict:
+    """The recorded frames' median ms per section (`FrameProfile`) and the bench's own read-back, and the UI rate
+    without that read-back (a person's window does not read its pixels back)."""
+    frames, w.frames = w.frames or [], None
+    if not frames:
+        return {}
+    medians = {s: float(np.median([f.get(s, 0.0) for f in frames])) for s in (*SECTIONS, "readback")}
+    readback_s = sum(f["readback"] for f in frames) / 1e3
+    return {f"{key}_frame_ms": medians, f"{key}_ui_fps_own": len(frames) / max(dt - readback_s, 1e-6)}
 
 
 def _input_event() -> None:
@@ -199,12 +215,14 @@ def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, sec
         out["slider_refined_s"] = _stats(refined)
         # orbit
         frames0, images, t0 = app.frames, 0, time.perf_counter()
+        w.frames = []
         while time.perf_counter() - t0 < seconds:
             app.state.camera.orbit(2.0, 0.0)
             images += w.step()
         dt = time.perf_counter() - t0
         out["orbit_images_per_s"] = images / dt
         out["orbit_ui_fps"] = (app.frames - frames0) / dt
+        out.update(_profiled(w, "orbit", dt))
         out["orbit_scale"] = app.draws.scale
         out["orbit_merged"] = app.draws.shown_merged
         t0 = time.perf_counter()
@@ -230,13 +248,15 @@ def _playback(app, w: _Watcher, seconds: float, baked: bool) -> dict:
         w.step()
     app.poses.playback.reset_stats()
     images, frames0, t0 = 0, app.frames, time.perf_counter()
+    w.frames = []
     while time.perf_counter() - t0 < seconds:
         images += w.step()
     dt = time.perf_counter() - t0
     tl.playing = False
     key = "baked" if baked else "live"
     return {f"{key}_images_per_s": images / dt, f"{key}_achieved_fps": app.poses.playback.achieved_fps(),
-            f"{key}_ui_fps": (app.frames - frames0) / dt, f"{key}_skipped": app.poses.playback.skipped}
+            f"{key}_ui_fps": (app.frames - frames0) / dt, f"{key}_skipped": app.poses.playback.skipped,
+            **_profiled(w, key, dt)}
 
 
 def _synthetic(n: int, folder: Path) -> tuple[str, str]:
@@ -285,10 +305,29 @@ precision of the exact dynamics, alternating in the same run."""
     if json_path is not None:
         json_path.write_text(json.dumps(results, indent=1))
     print(table(results))
+    print(profile_table(results))
     if live is not None:
         print(json.dumps(live))
         print(live_link_table(live))
     return results
+
+
+def profile_table(results: list[dict]) -> str:
+    """A markdown table of the UI frames while orbiting and playing: UI rate with and without the bench's own
+    read-back, and the median ms of each section of a frame (`FrameProfile`)."""
+    rows = ["| avatar | drawing | while | UI fps | UI fps without read-back | "
+            + " | ".join(f"{s} ms" for s in SECTIONS) + " | read-back ms |",
+            "|---|---|---|---:|---:|" + "---:|" * (len(SECTIONS) + 1)]
+    for r in results:
+        drawing = ("budget + LOD" if r.get("lod") else "budget") if r["budget"] else "off"
+        for key in ("orbit", "live", "baked"):
+            ms = r.get(f"{key}_frame_ms")
+            if not ms:
+                continue
+            fps, own = r[f"{key}_ui_fps"], r[f"{key}_ui_fps_own"]
+            rows.append(f"| {r['avatar']} | {drawing} | {key} | {fps:.1f} | {own:.1f} | "
+                        + " | ".join(f"{ms[s]:.1f}" for s in (*SECTIONS, "readback")) + " |")
+    return "\n".join(rows)
 
 
 def table(results: list[dict]) -> str:

@@ -1,19 +1,21 @@
-"""Which colour-pass path draws an image cheaper: GL points (a quarter of the vertex work) or instanced quads (fewer
-fragments: a point shades its splat's whole axis-aligned square, a quad only the oriented rectangle).
+"""Which colour-pass path draws an image cheaper: GL points (a quarter of the vertex work, no triangle set-up) or
+instanced quads (fewer fragments: a point shades the axis-aligned square around its splat's ellipse, a quad only the
+oriented rectangle).
 
-On llvmpipe points win where vertex work dominates (small images: the demo at 240x225, 54 vs 97 ms) and quads where
-fragments do (full resolution: 960x900, 225 vs 290 ms; docs/PERFORMANCE.md). The cross-over depends on the splats'
-sizes on screen and the machine, so the choice follows the measured cost of earlier images of about the same size
-(pixel counts within a factor of sqrt 2), per visible splat, and every `EXPLORE`-th image of a size tries the path
-that is not taken so that a change (an avatar, a zoom) is noticed. The images of both paths are the same.
+On llvmpipe points win where vertex work dominates (small images: the demo at 240x225, 28 vs 56 ms) and up to
+about full HD for the demo (1360x900: 104 vs 128 ms); quads win where fragments dominate (a synthetic 100k avatar
+at 2560x1440: 335 vs 398 ms; docs/PERFORMANCE.md). The cross-over depends on the splats' sizes on screen and the
+machine, so the choice follows the measured cost of earlier images of about the same size (pixel counts within a
+factor of sqrt 2), per visible splat, and every `EXPLORE`-th image of a size tries the path that is not taken so
+that a change (an avatar, a zoom) is noticed. The images of both paths are the same.
 """
 
 from __future__ import annotations
 
 import math
 
-#: Below this many pixels an unmeasured size starts with points, above with quads (the measured cross-over).
-PRIOR_PIXELS = 400_000
+#: Below this many pixels an unmeasured size starts with points, above with quads (about the measured cross-over).
+PRIOR_PIXELS = 2_000_000
 #: Every this many images of a size, the path not taken is drawn once to refresh its cost.
 EXPLORE = 12
 

@@ -147,7 +147,7 @@ def _preprocess_chunk(cols: Columns, sl: slice, camera: Camera, proj: np.ndarray
     dx, dy, dz = x - centre[0], y - centre[1], z - centre[2]
     norm = np.sqrt(dx * dx + dy * dy + dz * dz)
     o[:, 12], o[:, 13], o[:, 14] = _sh_colour(cols, sl, (dx / norm, dy / norm, dz / norm))
-    o[:, 15] = 0.0
+    o[:, 15] = f32(2.0) * np.maximum(hx, hy) + f32(1.0)  # point_side (splat_common.glsl)
 
 
 def preprocess(cols: Columns, order: np.ndarray, camera: Camera, flip_y: bool, max_point: float,
@@ -155,7 +155,7 @@ def preprocess(cols: Columns, order: np.ndarray, camera: Camera, flip_y: bool, m
     """The pre-pass of `shaders/splat_preprocess.comp` on the CPU, drawn in the sorted order `order`.
 
     Returns (splats (K, 16) float32 in draw order: centre (x, y, depth, opacity), half-axes, conic (a, b, c,
-    index), colour (r, g, b, 0); the indices (K,) kept; the number of kept splats whose bounding square exceeds
+    index), colour (r, g, b, point side); the indices (K,) kept; the number of kept splats whose bounding square exceeds
     `max_point` pixels). Computed in chunks over all Gaussians in stored order (contiguous reads that stay in
     cache; a head is mostly in view), then the kept rows are taken in the sorted order.
     """
@@ -168,8 +168,7 @@ def preprocess(cols: Columns, order: np.ndarray, camera: Camera, flip_y: bool, m
     kept = np.asarray(order, np.int64)
     kept = kept[keep[kept]]
     splats = out[kept]
-    half = np.maximum(np.abs(splats[:, 4]) + np.abs(splats[:, 6]), np.abs(splats[:, 5]) + np.abs(splats[:, 7]))
-    return splats, kept, int(np.count_nonzero(2.0 * half + 1.0 > max_point))
+    return splats, kept, int(np.count_nonzero(splats[:, 15] > max_point))
 
 
 class LinePass41:

@@ -1,0 +1,65 @@
+"""`FrameProfile`: where the window's UI frames spend their wall time, section by section.
+
+`ViewerApp.step` marks the end of each section; the stats overlay shows the averages over the last second and
+`npga-view bench --window` reports the medians while orbiting and playing. Sections, in frame order:
+
+- events: glfw events (and the wait for input after a quiet frame) and imgui's new frame;
+- panels: the side panel's widgets, the actions they sent, edits and keyframes;
+- dynamics: Live Link, the pose controller (worker results, previews, playback), inspection refreshes;
+- splats: clearing, the budgeted splat draw (`DrawScheduler.frame`), the CNN refinement or the Compare view, and
+  presenting the image into the window;
+- overlay: the display snapshot, the stats overlay's widgets, the recorder;
+- present: imgui's draw lists rendered and the buffers swapped (on llvmpipe this waits for the queued GL work).
+"""
+
+from __future__ import annotations
+
+import time
+from collections import deque
+
+SECTIONS = ("events", "panels", "dynamics", "splats", "overlay", "present")
+
+
+class FrameProfile:
+    """Milliseconds per section of the last UI frame (`last`) and of the frames of the last `window_s` seconds."""
+
+    def __init__(self, window_s: float = 1.0) -> None:
+        self.window_s = window_s
+        self.last: dict[str, float] = {}
+        self._current: dict[str, float] = {}
+        self._t = 0.0
+        self._recent: deque[tuple[float, dict[str, float]]] = deque()
+
+    def start(self) -> None:
+        """A UI frame begins."""
+        self._t = time.perf_counter()
+        self._current = {}
+
+    def mark(self, section: str) -> None:
+        """The time since the last mark (or the start) belongs to `section`."""
+        now = time.perf_counter()
+        self._current[section] = self._current.get(section, 0.0) + (now - self._t) * 1e3
+        self._t = now
+
+    def end(self) -> None:
+        """The frame ends: it becomes `last` and joins the recent frames."""
+        self.last = self._current
+        now = time.perf_counter()
+        self._recent.append((now, self._current))
+        while self._recent and now - self._recent[0][0] > self.window_s:
+            self._recent.popleft()
+
+    def averages(self) -> dict[str, float]:
+        """Mean milliseconds per section over the recent frames (sections in frame order; empty before a frame)."""
+        frames = [f for _, f in self._recent]
+        if not frames:
+            return {}
+        return {s: sum(f.get(s, 0.0) for f in frames) / len(frames) for s in SECTIONS}
+
+    def line(self) -> str:
+        """One line for the stats overlay, e.g. 'UI frame 31.2 ms: events 0.1, panels 2.0, ...'."""
+        avg = self.averages()
+        if not avg:
+            return ""
+        parts = ", ".join(f"{s} {v:.1f}" for s, v in avg.items())
+        return f"UI frame {sum(avg.values()):.1f} ms: {parts}"
