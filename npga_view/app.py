@@ -345,8 +345,10 @@ class ViewerApp:
                 panel.draw(self.state, self.info)
         self.recorder.frame()
         profile.mark("overlay")
-        window.end_frame()
-        profile.mark("present")
+        window.draw_ui()
+        profile.mark("ui")
+        window.swap()
+        profile.mark("swap")
         profile.end()
         self.frames += 1
         self._was_quiet = self._quiet() and not self.live.busy()

@@ -9,7 +9,9 @@
 - splats: clearing, the budgeted splat draw (`DrawScheduler.frame`), the CNN refinement or the Compare view, and
   presenting the image into the window;
 - overlay: the display snapshot, the stats overlay's widgets, the recorder;
-- present: imgui's draw lists rendered and the buffers swapped (on llvmpipe this waits for the queued GL work).
+- ui: imgui's draw lists rendered (on a software GL only queued: drawn at the swap);
+- swap: the buffers swapped; on llvmpipe this draws what was queued (the image presented, imgui) and copies the
+  window's pixels to the X server.
 """
 
 from __future__ import annotations
@@ -17,7 +19,7 @@ from __future__ import annotations
 import time
 from collections import deque
 
-SECTIONS = ("events", "panels", "dynamics", "splats", "overlay", "present")
+SECTIONS = ("events", "panels", "dynamics", "splats", "overlay", "ui", "swap")
 
 
 class FrameProfile:

@@ -2,8 +2,8 @@
 
 Opens a 4.3 core context (the compute path), else 4.1 core (macOS, the 4.1 path); installs imgui's glfw and
 OpenGL backends; splits the framebuffer into the side panel (`SIDE_PANEL` logical pixels) and the splat view.
-`begin_frame` polls input (or waits for it up to a timeout when nothing moves), `end_frame` renders imgui
-and swaps. Nothing here knows about avatars.
+`begin_frame` polls input (or waits for it up to a timeout when nothing moves), `draw_ui` renders imgui,
+`swap` shows the frame. Nothing here knows about avatars.
 """
 
 from __future__ import annotations
@@ -107,10 +107,13 @@ class Window:
         self.ctx.viewport = (0, 0, fw, fh)
         self.ctx.clear(0.08, 0.08, 0.09, 1.0)
 
-    def end_frame(self) -> None:
-        """Draw imgui over the frame and show it."""
+    def draw_ui(self) -> None:
+        """Render imgui's draw lists over the frame."""
         imgui.render()
         imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
+
+    def swap(self) -> None:
+        """Show the frame (on a software GL this finishes the frame's queued drawing and copies the image)."""
         glfw.swap_buffers(self._h)
 
     def close_requested(self) -> bool:

@@ -532,6 +532,12 @@ def test_scale_goes_down_while_orbiting_and_back_to_full_after(app, avatar_path)
     assert app.draws.scale == 1.0 and app.draws.status == "exact"
     app.step()
     assert app.info.image_status == "exact" and app.info.draw_scale == 1.0
+    # the UI frames' time by section (npga_view/frame_profile.py): every section of every frame, the splats' work
+    # inside "splats"; the stats overlay's line says it
+    from npga_view.frame_profile import SECTIONS
+
+    assert set(app.profile.last) == set(SECTIONS) and sum(app.profile.last.values()) > 0.0
+    assert app.info.frame_profile.startswith("UI frame ") and "splats" in app.info.frame_profile
 
 
 def test_sliced_window_image_equals_one_draw(app, avatar_path):
