@@ -317,8 +317,9 @@ class ViewerApp:
         assert window is not None
         profile = self.profile
         profile.start()
-        window.begin_frame(self.idle_wait_s if self._was_quiet else 0.0)
-        profile.mark("events")
+        window.take_input(self.idle_wait_s if self._was_quiet else 0.0)
+        profile.mark("wait")
+        window.new_frame()
         now = time.perf_counter()
         dt, self._last_t = now - self._last_t, now
         self._fps_t = [t for t in self._fps_t if now - t < 1.0] + [now]

@@ -3,8 +3,8 @@
 `ViewerApp.step` marks the end of each section; the stats overlay shows the averages over the last second and
 `npga-view bench --window` reports the medians while orbiting and playing. Sections, in frame order:
 
-- events: glfw events (and the wait for input after a quiet frame) and imgui's new frame;
-- panels: the side panel's widgets, the actions they sent, edits and keyframes;
+- wait: glfw's events, and after a quiet frame the wait for input (idle time, not work: `line` shows it apart);
+- panels: imgui's new frame, the side panel's widgets, the actions they sent, edits and keyframes;
 - dynamics: Live Link, the pose controller (worker results, previews, playback), inspection refreshes;
 - splats: clearing, the budgeted splat draw (`DrawScheduler.frame`), the CNN refinement or the Compare view, and
   presenting the image into the window;
@@ -19,7 +19,8 @@ from __future__ import annotations
 import time
 from collections import deque
 
-SECTIONS = ("events", "panels", "dynamics", "splats", "overlay", "ui", "swap")
+SECTIONS = ("wait", "panels", "dynamics", "splats", "overlay", "ui", "swap")
+IDLE = "wait"  # the section that is idle time, not work
 
 
 class FrameProfile:
@@ -59,9 +60,11 @@ class FrameProfile:
         return {s: sum(f.get(s, 0.0) for f in frames) / len(frames) for s in SECTIONS}
 
     def line(self) -> str:
-        """One line for the stats overlay, e.g. 'UI frame 31.2 ms: events 0.1, panels 2.0, ...'."""
+        """One line for the stats overlay: the mean work of a UI frame by section, then the wait for input,
+        e.g. 'UI frame 31.2 ms: panels 2.0, ..., swap 9.5 (+ waiting for input 0.1)'."""
         avg = self.averages()
         if not avg:
             return ""
-        parts = ", ".join(f"{s} {v:.1f}" for s, v in avg.items())
-        return f"UI frame {sum(avg.values()):.1f} ms: {parts}"
+        work = {s: v for s, v in avg.items() if s != IDLE}
+        parts = ", ".join(f"{s} {v:.1f}" for s, v in work.items())
+        return f"UI frame {sum(work.values()):.1f} ms: {parts} (+ waiting for input {avg[IDLE]:.1f})"

@@ -2,8 +2,8 @@
 
 Opens a 4.3 core context (the compute path), else 4.1 core (macOS, the 4.1 path); installs imgui's glfw and
 OpenGL backends; splits the framebuffer into the side panel (`SIDE_PANEL` logical pixels) and the splat view.
-`begin_frame` polls input (or waits for it up to a timeout when nothing moves), `draw_ui` renders imgui,
-`swap` shows the frame. Nothing here knows about avatars.
+`take_input` polls input (or waits for it up to a timeout when nothing moves), `new_frame` starts imgui's frame,
+`draw_ui` renders imgui, `swap` shows the frame. Nothing here knows about avatars.
 """
 
 from __future__ import annotations
@@ -90,12 +90,15 @@ class Window:
         glfw.set_window_title(self._h, title)
 
     # -- frames -----------------------------------------------------------------------------------------
-    def begin_frame(self, wait_s: float = 0.0) -> None:
-        """Take input (waiting for it up to `wait_s` when > 0) and start an imgui frame."""
+    def take_input(self, wait_s: float = 0.0) -> None:
+        """Take input (waiting for it up to `wait_s` when > 0)."""
         if wait_s > 0:
             glfw.wait_events_timeout(wait_s)
         else:
             glfw.poll_events()
+
+    def new_frame(self) -> None:
+        """Start an imgui frame."""
         imgui.backends.opengl3_new_frame()
         imgui.backends.glfw_new_frame()
         imgui.new_frame()
