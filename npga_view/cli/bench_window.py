@@ -41,6 +41,7 @@ if TYPE_CHECKING:
     from npga_core.model.avatar import Avatar
     from npga_core.model.expression import ExpressionSpace
     from npga_core.posing.livelink import LiveLinkReceiver
+    from npga_view.app import ViewerApp
 
 SIZE = (1360, 900)
 
@@ -71,9 +72,9 @@ def _start_xvfb() -> subprocess.Popen | None:
 class _Watcher:
     """Steps the app and fingerprints the splat view's pixels after every UI frame."""
 
-    def __init__(self, app):
+    def __init__(self, app: ViewerApp) -> None:
         self.app = app
-        self.last = None
+        self.last: tuple[int, int] | None = None  # fingerprint of the last view image
         self.last_changed = False
         self.frames: list[dict[str, float]] | None = None  # while recording: the UI frames' sections + read-back
 
