@@ -335,17 +335,17 @@ class ViewerApp:
         self.poses.update(dt)
         if self._posed is not None and self.inspection.stale(self.state.inspect, self.current_camera):
             self.show(self._posed)  # the Inspect settings (or, for depth colouring, the camera) changed
-        profile.mark("dynamics")
+        profile.mark("posing")
         window.clear()
         self._draw_splats()
         profile.mark("splats")
         self._publish_info()
-        self.info.frame_profile = profile.line()
+        self.info.frame_profile = profile.lines()
         if self.state.show_stats:
             for panel in self.panels.overlays:  # after drawing, so that they report this frame's image
                 panel.draw(self.state, self.info)
         self.recorder.frame()
-        profile.mark("overlay")
+        profile.mark("stats")
         window.draw_ui()
         profile.mark("ui")
         window.swap()

@@ -3,12 +3,12 @@
 `ViewerApp.step` marks the end of each section; the stats overlay shows the averages over the last second and
 `npga-view bench --window` reports the medians while orbiting and playing. Sections, in frame order:
 
-- wait: glfw's events, and after a quiet frame the wait for input (idle time, not work: `line` shows it apart);
+- wait: glfw's events, and after a quiet frame the wait for input (idle time, not work: `lines` show it apart);
 - panels: imgui's new frame, the side panel's widgets, the actions they sent, edits and keyframes;
-- dynamics: Live Link, the pose controller (worker results, previews, playback), inspection refreshes;
+- posing: Live Link, the pose controller (worker results, previews, playback), inspection refreshes;
 - splats: clearing, the budgeted splat draw (`DrawScheduler.frame`), the CNN refinement or the Compare view, and
   presenting the image into the window;
-- overlay: the display snapshot, the stats overlay's widgets, the recorder;
+- stats: the display snapshot, the stats overlay's widgets, the recorder;
 - ui: imgui's draw lists rendered (on a software GL only queued: drawn at the swap);
 - swap: the buffers swapped; on llvmpipe this draws what was queued (the image presented, imgui) and copies the
   window's pixels to the X server.
@@ -19,7 +19,7 @@ from __future__ import annotations
 import time
 from collections import deque
 
-SECTIONS = ("wait", "panels", "dynamics", "splats", "overlay", "ui", "swap")
+SECTIONS = ("wait", "panels", "posing", "splats", "stats", "ui", "swap")
 IDLE = "wait"  # the section that is idle time, not work
 
 
@@ -59,12 +59,13 @@ class FrameProfile:
             return {}
         return {s: sum(f.get(s, 0.0) for f in frames) / len(frames) for s in SECTIONS}
 
-    def line(self) -> str:
-        """One line for the stats overlay: the mean work of a UI frame by section, then the wait for input,
-        e.g. 'UI frame 31.2 ms: panels 2.0, ..., swap 9.5 (+ waiting for input 0.1)'."""
+    def lines(self) -> list[str]:
+        """Two short lines for the stats overlay (as narrow as its other lines): the mean work of a UI frame and
+        the wait for input, then the work by section, e.g. ['UI frame 31.2 ms + 0.1 ms waiting for input',
+        'panels 2.0 posing 0.2 splats 19.0 stats 0.1 ui 0.3 swap 9.5']; none before a frame."""
         avg = self.averages()
         if not avg:
-            return ""
+            return []
         work = {s: v for s, v in avg.items() if s != IDLE}
-        parts = ", ".join(f"{s} {v:.1f}" for s, v in work.items())
-        return f"UI frame {sum(work.values()):.1f} ms: {parts} (+ waiting for input {avg[IDLE]:.1f})"
+        return [f"UI frame {sum(work.values()):.1f} ms + {avg[IDLE]:.1f} ms waiting for input",
+                " ".join(f"{s} {v:.1f}" for s, v in work.items())]

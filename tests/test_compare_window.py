@@ -76,6 +76,7 @@ def window(display, tmp_path_factory):
 
     app = ViewerApp(900, 700, vsync=False, threads=1, remember_recent=False)
     app.state.use_cnn = False
+    app.state.show_stats = False  # its figures change every frame and cover part of the view: pixels are compared
     assert app.open_avatar("demo")
     yield app, root
     app.close()
@@ -134,10 +135,13 @@ def test_compare_with_a_capture_wipe_blend_difference_and_stepping(window, captu
         app.state.actions += [C.SetCompareMode("wipe"), C.SetComparePosition(t)]
         _ready(app)
         shown[t] = _image_region(app).astype(float)
-    assert np.abs(shown[1.0] - shown[0.0]).max() > 20  # (the noise of the capture at least)
+    # the two differ by the capture's noise at least (sd 0.01: 2.6 levels; measured: 7 % of the pixels by more
+    # than 3, at most 9); this asked for a maximum above 20, which only the changing stats overlay gave
+    assert (np.abs(shown[1.0] - shown[0.0]).max(axis=2) > 3).mean() > 0.02
     w = shown[0.5].shape[1]
-    assert np.abs(shown[0.5][:, : w // 2 - 3] - shown[1.0][:, : w // 2 - 3]).mean() < 1.0
-    assert np.abs(shown[0.5][:, w // 2 + 3:] - shown[0.0][:, w // 2 + 3:]).mean() < 1.0
+    m = int(np.ceil(3 * w / W))  # the divider: 2 pixels of the composed image, magnified w / W and filtered
+    assert np.abs(shown[0.5][:, : w // 2 - m] - shown[1.0][:, : w // 2 - m]).mean() < 1.0
+    assert np.abs(shown[0.5][:, w // 2 + m:] - shown[0.0][:, w // 2 + m:]).mean() < 1.0
     app.screenshot(str(Path(__file__).resolve().parent.parent / "out" / "compare_wipe.png"))
     app.state.actions += [C.SetCompareMode("blend"), C.SetComparePosition(0.5)]
     _ready(app)

@@ -21,7 +21,7 @@ class AppInfo:
     sequence: ExpressionSequence | None = None
     frame: int = 0
     fps: float = 0.0  # UI frames per second
-    frame_profile: str = ""  # where the UI frames' time goes (FrameProfile.line)
+    frame_profile: list[str] = field(default_factory=list)  # where the UI frames' time goes (FrameProfile.lines)
     timings: dict[str, float] = field(default_factory=dict)  # ms per stage
     gaussians_drawn: int = 0
     posing: bool = False  # a dynamics request is pending

@@ -35,8 +35,8 @@ def _body(info: AppInfo) -> None:
     total = len(a) if a is not None else 0
     imgui.text(f"Gaussians: {total:,} total, {info.gaussians_drawn:,} in front of the camera")
     imgui.text(f"UI: {info.fps:5.1f} fps" + ("   posing..." if info.posing else ""))
-    if info.frame_profile:
-        imgui.text(info.frame_profile)
+    for line in info.frame_profile:
+        imgui.text(line)
     imgui.text(f"renderer: {info.renderer_path}")
     extra = ([info.live_counters] if info.live_counters else []) + list(info.compare.overlay if info.compare else ())
     for line in extra:  # the Live Link counters; the Compare panel's view (it replaces the splats) and its scores
