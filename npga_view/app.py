@@ -340,8 +340,8 @@ class ViewerApp:
         self._draw_splats()
         profile.mark("splats")
         self._publish_info()
-        self.info.frame_profile = profile.lines()
         if self.state.show_stats:
+            self.info.frame_profile = profile.lines()
             for panel in self.panels.overlays:  # after drawing, so that they report this frame's image
                 panel.draw(self.state, self.info)
         self.recorder.frame()

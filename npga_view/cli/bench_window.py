@@ -91,6 +91,13 @@ class _Watcher:
         self.last_changed = changed
         return changed
 
+    def until_changed(self, t0: float, timeout: float = 60.0) -> float | None:
+        """Step until the view's pixels change; seconds since `t0` (when the change was caused), or None."""
+        while time.perf_counter() - t0 < timeout:
+            if self.step():
+                return time.perf_counter() - t0
+        return None
+
     def until(self, cond, timeout: float) -> float | None:
         """Step until `cond()`; seconds it took, or None on timeout."""
         t0 = time.perf_counter()
@@ -200,12 +207,7 @@ def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, sec
             app.state.sliders[0] += 1.0 if k % 2 == 0 else -1.0
             _input_event()  # as the mouse event of a real slider move does, wake a window waiting for input
             t0 = time.perf_counter()
-            changed = None
-            while time.perf_counter() - t0 < 60:
-                if w.step():
-                    changed = time.perf_counter() - t0
-                    break
-            first.append(changed)
+            first.append(w.until_changed(t0))
             done = w.until(lambda: _exact(app), 120)
             exact.append(None if done is None else time.perf_counter() - t0)
             if cnn:
@@ -382,8 +384,7 @@ def measure_live_link(avatar: str = "demo", samples: int = 12, seconds: float = 
             app.state.follow_sequence = False
             app.state.sliders[0] += 1.0 if k % 2 == 0 else -1.0
             _input_event()
-            t0 = time.perf_counter()
-            ref.append(w.until(lambda: w.last_changed, 60))
+            ref.append(w.until_changed(time.perf_counter()))
         out["slider_changed_s"] = _stats(ref)
         if not app.live.start("127.0.0.1:0"):
             return {**out, "error": "; ".join(app.state.errors)}
@@ -403,12 +404,7 @@ def measure_live_link(avatar: str = "demo", samples: int = 12, seconds: float = 
             w.step()
             t0 = time.perf_counter()
             sock.sendto(packet(0.8 if k % 2 == 0 else 0.1), addr)
-            changed = None
-            while time.perf_counter() - t0 < 60:
-                if w.step():
-                    changed = time.perf_counter() - t0
-                    break
-            lat.append(changed)
+            lat.append(w.until_changed(t0))
         out["packet_changed_s"] = _stats(lat)
         w.until(lambda: _exact(app), 120)
         c0 = dict(vars(cast("LiveLinkReceiver", app.live.receiver).counters))

@@ -143,9 +143,9 @@ class SplatRenderer(AuxiliaryPasses):
         self._splat_prog = ctx.program(vertex_shader=self._load_shader("splat.vert"),
                                        fragment_shader=self._load_shader("splat.frag", fast))
         self._splat_vao = ctx.vertex_array(self._splat_prog, [])
-        self._style_prog = ctx.program(vertex_shader=self._load_shader("splat.vert"),
-                                       fragment_shader=self._load_shader("splat.frag"))
-        self._style_vao = ctx.vertex_array(self._style_prog, [])
+        # the other styles' colour pass (the general splat.frag), built when first drawn
+        self._style_prog: moderngl.Program | None = None
+        self._style_vao: moderngl.VertexArray | None = None
         self._points_prog = ctx.program(vertex_shader=self._load_shader("splat_points.vert"),
                                         fragment_shader=self._load_shader("splat.frag", fast))
         self._points_vao = ctx.vertex_array(self._points_prog, [])
@@ -536,13 +536,20 @@ class SplatRenderer(AuxiliaryPasses):
             self.ctx.disable(moderngl.PROGRAM_POINT_SIZE)
         else:
             self._begin_pass(fbo, (0, 0, job.width, job.height))
-            styled = self.style != "splats"
-            prog, vao = (self._style_prog, self._style_vao) if styled else (self._splat_prog, self._splat_vao)
+            prog, vao = (self._splat_prog, self._splat_vao) if self.style == "splats" else self._styled_program()
             self._bind_splats(prog)
             self._set_style(prog, camera)
             prog["u_first"].value = first  # type: ignore[union-attr]
             prog["u_mode"].value = 1 if job.mode == "depth" else 0  # type: ignore[union-attr]
             vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
+
+    def _styled_program(self) -> tuple[moderngl.Program, moderngl.VertexArray]:
+        """The colour pass of the points and ellipsoids styles (compiled on first use)."""
+        if self._style_prog is None or self._style_vao is None:
+            self._style_prog = self.ctx.program(vertex_shader=self._load_shader("splat.vert"),
+                                                fragment_shader=self._load_shader("splat.frag"))
+            self._style_vao = self.ctx.vertex_array(self._style_prog, [])
+        return self._style_prog, self._style_vao
 
     def _set_style(self, prog: moderngl.Program, camera: Camera) -> None:
         if self.style not in STYLES:
