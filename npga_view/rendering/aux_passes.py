@@ -78,11 +78,15 @@ class AuxiliaryPasses:
         def _read(self, fbo: moderngl.Framebuffer, attachment: int, width: int, height: int) -> np.ndarray: ...
         def set_gaussians(self, posed: PosedGaussians) -> None: ...
 
+    def _program(self, vertex: str, fragment: str, defines: Mapping[str, object] | None = None) -> moderngl.Program:
+        """A GL program (of this renderer's shader path) of two shaders/ files, `defines` added to both."""
+        return self.ctx.program(vertex_shader=self._load_shader(vertex, defines),
+                                fragment_shader=self._load_shader(fragment, defines))
+
     def _latent_program(self, targets: int) -> tuple[moderngl.Program, moderngl.VertexArray]:
         if targets not in self._latent_progs:
             defines = {"NUM_TARGETS": targets}
-            prog = self.ctx.program(vertex_shader=self._load_shader("splat_latent.vert", defines),
-                                    fragment_shader=self._load_shader("splat_latent.frag", defines))
+            prog = self._program("splat_latent.vert", "splat_latent.frag", defines)
             self._latent_progs[targets] = (prog, self.ctx.vertex_array(prog, []))
         return self._latent_progs[targets]
 

@@ -140,14 +140,10 @@ class SplatRenderer(AuxiliaryPasses):
         self.max_ssbo_bytes = int(ctx.info.get("GL_MAX_SHADER_STORAGE_BLOCK_SIZE") or 0)
         self._preprocess = self._build_preprocess()
         fast = {"SPLATS_ONLY": 1}  # the colour pass of the "splats" style: no style branches (splat.frag)
-        self._splat_prog = ctx.program(vertex_shader=self._load_shader("splat.vert"),
-                                       fragment_shader=self._load_shader("splat.frag", fast))
+        self._splat_prog = self._program("splat.vert", "splat.frag", fast)
         self._splat_vao = ctx.vertex_array(self._splat_prog, [])
-        # the other styles' colour pass (the general splat.frag), built when first drawn
-        self._style_prog: moderngl.Program | None = None
-        self._style_vao: moderngl.VertexArray | None = None
-        self._points_prog = ctx.program(vertex_shader=self._load_shader("splat_points.vert"),
-                                        fragment_shader=self._load_shader("splat.frag", fast))
+        self._styled: tuple[moderngl.Program, moderngl.VertexArray] | None = None  # `_styled_program`
+        self._points_prog = self._program("splat_points.vert", "splat.frag", fast)
         self._points_vao = ctx.vertex_array(self._points_prog, [])
         #: largest GL point size; splats of up to this size may be drawn as points (`use_points`)
         self.max_point = float(ctx.info["GL_POINT_SIZE_RANGE"][1])
@@ -160,8 +156,7 @@ class SplatRenderer(AuxiliaryPasses):
         self._job_camera: Camera | None = None
         self._job_framebuffer: moderngl.Framebuffer | None = None
         self._slice = 8192  # sorted positions per slice, adapted so that a slice takes about the budget
-        self._id_prog = ctx.program(vertex_shader=self._load_shader("splat.vert"),
-                                    fragment_shader=self._load_shader("splat_id.frag"))
+        self._id_prog = self._program("splat.vert", "splat_id.frag")
         self._id_vao = ctx.vertex_array(self._id_prog, [])
         self._id_target: tuple[moderngl.Texture, moderngl.Framebuffer] | None = None
         self._lines: Lines | None = None
@@ -170,8 +165,7 @@ class SplatRenderer(AuxiliaryPasses):
         self.point_px = 2.0
         self.style_min_opacity = 0.05
         self._latent_progs: dict[int, tuple[moderngl.Program, moderngl.VertexArray]] = {}
-        self._composite_prog = ctx.program(vertex_shader=self._load_shader("fullscreen.vert"),
-                                           fragment_shader=self._load_shader("composite.frag"))
+        self._composite_prog = self._program("fullscreen.vert", "composite.frag")
         self._composite_vao = ctx.vertex_array(self._composite_prog, [])
         self._count = 0
         self._means: np.ndarray | None = None
@@ -297,9 +291,8 @@ class SplatRenderer(AuxiliaryPasses):
         if self._lines is not None:
             self._lines.release()
             self._lines = None
-        for obj in (self._splat_vao, self._splat_prog, self._style_vao, self._style_prog, self._points_vao,
-                    self._points_prog, self._id_vao,
-                    self._id_prog, self._composite_vao, self._composite_prog, self._preprocess):
+        for obj in (self._splat_vao, self._splat_prog, *(self._styled or ())[::-1], self._points_vao, self._points_prog,
+                    self._id_vao, self._id_prog, self._composite_vao, self._composite_prog, self._preprocess):
             if obj is not None:
                 obj.release()
 
@@ -544,12 +537,11 @@ class SplatRenderer(AuxiliaryPasses):
             vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
 
     def _styled_program(self) -> tuple[moderngl.Program, moderngl.VertexArray]:
-        """The colour pass of the points and ellipsoids styles (compiled on first use)."""
-        if self._style_prog is None or self._style_vao is None:
-            self._style_prog = self.ctx.program(vertex_shader=self._load_shader("splat.vert"),
-                                                fragment_shader=self._load_shader("splat.frag"))
-            self._style_vao = self.ctx.vertex_array(self._style_prog, [])
-        return self._style_prog, self._style_vao
+        """The colour pass of the points and ellipsoids styles (the general splat.frag), compiled on first use."""
+        if self._styled is None:
+            prog = self._program("splat.vert", "splat.frag")
+            self._styled = (prog, self.ctx.vertex_array(prog, []))
+        return self._styled
 
     def _set_style(self, prog: moderngl.Program, camera: Camera) -> None:
         if self.style not in STYLES:
