@@ -14,6 +14,7 @@ from npga_core.errors import AvatarFileError
 from npga_core.files.arkit_takes import TAKE_SUFFIXES, read_take_sequence
 from npga_core.files.checkpoint import MAGIC, read_avatar
 from npga_core.files.gha import import_gha, is_gha_folder, is_gha_params, read_gha_params
+from npga_core.files.lam import is_zip, read_lam_zip
 from npga_core.files.places import bundled_path
 from npga_core.files.ply import read_ply
 from npga_core.files.sequences import (
@@ -35,7 +36,7 @@ DEMO_AVATAR = DEMO_DIR / "avatar.npga"
 
 
 def load_avatar(path: str | Path) -> Avatar:
-    """Open a `.npga` checkpoint, a 3DGS `.ply`, or "demo"; raises AvatarFileError on bad input.
+    """Open a `.npga` checkpoint, a 3DGS `.ply`, a LAM avatar zip, or "demo"; raises AvatarFileError on bad input.
 
     The type is decided by the file's first bytes, not its name.
     """
@@ -57,11 +58,13 @@ def load_avatar(path: str | Path) -> Avatar:
         raise AvatarFileError(p, f"cannot read: {e.strerror or e}") from None
     if head and MAGIC.startswith(head):  # whole signature, or a file cut inside it
         return read_avatar(p)
+    if is_zip(head):
+        return read_lam_zip(p)
     if head.startswith(b"ply"):
         return Avatar(read_ply(p), provenance={"source": str(p), "format": "3dgs-ply"}, source=str(p))
     if not head:
         raise AvatarFileError(p, "file is empty")
-    raise AvatarFileError(p, f"not an .npga checkpoint or a PLY file (starts with {head[:8]!r})")
+    raise AvatarFileError(p, f"not an .npga checkpoint, a PLY file or a LAM zip (starts with {head[:8]!r})")
 
 
 def load_sequence(path: str | Path, fps: float | None = None,

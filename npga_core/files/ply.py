@@ -8,6 +8,7 @@ opacity is a logit, scales are logs, rot is (w, x, y, z), and f_rest is channel-
 
 from __future__ import annotations
 
+import io
 import re
 from pathlib import Path
 
@@ -116,16 +117,32 @@ def read_ply(path: str | Path) -> GaussianCloud:
         raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None
 
 
+def read_ply_bytes(data: bytes, where: str | Path) -> GaussianCloud:
+    """A 3DGS `.ply` held in memory (a member of an archive, named `where` in errors) as a static cloud."""
+    try:
+        if not data:
+            raise _Bad("file is empty")
+        return _read_stream(io.BytesIO(data), len(data))
+    except _Bad as e:
+        raise AvatarFileError(where, str(e)) from None
+    except MemoryError:
+        raise AvatarFileError(where, "not enough memory to read its vertices") from None
+
+
 def _read_ply(path: Path) -> GaussianCloud:
     size = regular_file(path, "a PLY file").stat().st_size
     if size == 0:
         raise _Bad("file is empty")
     with open_regular(path, "a PLY file") as fh:
-        fmt, elements, header_len = _parse_header(fh)
-        n, props = _vertex_element(elements)
-        names = [p for p, _ in props]
-        cols = (_ascii_columns(fh, n, names) if fmt == "ascii"
-                else _binary_columns(fh, fmt, n, props, size - header_len))
+        return _read_stream(fh, size)
+
+
+def _read_stream(fh, size: int) -> GaussianCloud:
+    fmt, elements, header_len = _parse_header(fh)
+    n, props = _vertex_element(elements)
+    names = [p for p, _ in props]
+    cols = (_ascii_columns(fh, n, names) if fmt == "ascii"
+            else _binary_columns(fh, fmt, n, props, size - header_len))
     return _cloud(cols, names, n)
 
 
@@ -163,7 +180,11 @@ def _binary_columns(fh, fmt: str, n: int, props: list[tuple[str, str]], availabl
     dt = np.dtype([(p, end + t) for p, t in props])
     if available < n * dt.itemsize:
         raise _Bad(f"truncated: {n} vertices need {n * dt.itemsize} bytes after the header, the file has {available}")
-    data = np.fromfile(fh, dtype=dt, count=n)
+    if isinstance(fh, io.BytesIO):  # an archive member in memory
+        start = fh.tell()
+        data = np.frombuffer(fh.getbuffer(), dtype=dt, count=n, offset=start).copy()
+    else:
+        data = np.fromfile(fh, dtype=dt, count=n)
     if data.shape[0] != n:  # the file shrank while it was read
         raise _Bad(f"truncated: {data.shape[0]} of {n} vertices could be read")
     return {name: data[name] for name, _ in props}

@@ -287,6 +287,59 @@ def npz_names(path: str | Path, max_members: int = MAX_NPZ_MEMBERS) -> list[str]
     return [n[:-4] if n.endswith(".npy") else n for n in names]
 
 
+def zip_member_names(path: str | Path, max_members: int, what: str = "a zip archive") -> list[str]:
+    """The member names of a zip archive from its central directory only, refused when there are more than
+    `max_members` or one is not a plain relative path (absolute, a drive, a backslash, '..', a NUL byte)."""
+    p = Path(path)
+    try:
+        with open_regular(p, what) as fh, zipfile.ZipFile(fh) as zf:
+            names = [i.filename for i in zf.infolist()]
+    except AvatarFileError:
+        raise
+    except (ValueError, OSError, EOFError, zipfile.BadZipFile, NotImplementedError, RuntimeError) as e:
+        raise AvatarFileError(p, f"not a readable zip archive ({e})") from None
+    if len(names) > max_members:
+        raise AvatarFileError(p, f"has {len(names)} members, more than the {max_members} allowed")
+    for name in names:
+        parts = name.split("/")
+        if (name.startswith("/") or "\\" in name or "\0" in name or ".." in parts
+                or (len(name) > 1 and name[1] == ":")):
+            raise AvatarFileError(p, f"member {shown(name)!r} is not a plain relative path (refused)")
+    return names
+
+
+def read_zip_members(path: str | Path, names: dict[str, int], max_total: int,
+                     what: str = "a zip archive") -> dict[str, bytes]:
+    """The bytes of the members `names` (name -> most bytes allowed) of a zip archive whose names were checked by
+    `zip_member_names`: each member's size is taken from the central directory before it is read, reads stop one
+    byte past the claim (a member that inflates beyond it is refused), and all of them within `max_total`."""
+    p = Path(path)
+    out: dict[str, bytes] = {}
+    try:
+        with open_regular(p, what) as fh, zipfile.ZipFile(fh) as zf:
+            left = max_total
+            for name, limit in names.items():
+                info = zf.getinfo(name)
+                if info.file_size > min(limit, left):
+                    raise AvatarFileError(p, f"member {shown(name)!r} claims {info.file_size:,} bytes, more than "
+                                          f"the {min(limit, left):,} allowed")
+                with zf.open(info) as member:
+                    data = member.read(info.file_size + 1)
+                if len(data) != info.file_size:
+                    raise AvatarFileError(p, f"member {shown(name)!r} holds {len(data):,} bytes, its directory "
+                                          f"entry says {info.file_size:,}")
+                out[name] = data
+                left -= len(data)
+    except AvatarFileError:
+        raise
+    except MemoryError:
+        raise AvatarFileError(p, "not enough memory to read it") from None
+    except (KeyError, ValueError, OSError, EOFError, zipfile.BadZipFile, NotImplementedError, RuntimeError,
+            zlib.error, lzma.LZMAError) as e:
+        raise AvatarFileError(p, f"not a readable zip archive ({e})") from None
+    return out
+
+
 def real_floats(arr: Any, path: str | Path, what: str, dtype: Any = np.float32) -> np.ndarray:
     """`arr` as finite real floats of `dtype`; AvatarFileError for complex, non-numeric, NaN/Inf or overflow."""
     a = np.asarray(arr) if not isinstance(arr, np.ndarray) else arr

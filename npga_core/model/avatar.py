@@ -12,6 +12,7 @@ import torch
 from npga_core.model.blendshapes import BlendshapeBasis
 from npga_core.model.cnn import ScreenCNN
 from npga_core.model.dynamics import (
+    RIG,
     Dynamics,
     Offsets,
     apply_offsets,
@@ -23,6 +24,7 @@ from npga_core.model.dynamics import (
 )
 from npga_core.model.expression import ExpressionSpace
 from npga_core.model.gaussians import GaussianCloud, PosedGaussians
+from npga_core.model.linear_rig import LinearRig
 from npga_core.model.rigid import transform_posed
 
 
@@ -53,6 +55,11 @@ class Avatar:
         """Width of the condition part of the frame vector (0 without one)."""
         return 0 if self.dynamics is None else self.dynamics.condition_dim
 
+    @property
+    def rig(self) -> LinearRig | None:
+        """The linear blendshape rig of the dynamics, if any (its weights end the frame vector)."""
+        return None if self.dynamics is None else self.dynamics.rig
+
     def __len__(self) -> int:
         return len(self.cloud)
 
@@ -67,7 +74,8 @@ class Avatar:
         condition part gets the neutral condition (zeros: Gaussian-Head-Avatar's head pose of a front view)."""
         z = np.asarray(z, dtype=np.float32).reshape(-1)
         if self.condition_dim and z.shape[0] == self.code_dim - self.condition_dim:
-            z = np.concatenate([z, np.zeros(self.condition_dim, np.float32)])
+            e = self.code_dim - self.condition_dim - (self.dynamics.rig_dim if self.dynamics is not None else 0)
+            z = np.concatenate([z[:e], np.zeros(self.condition_dim, np.float32), z[e:]])
         if z.shape[0] != self.code_dim:
             raise ValueError(f"expression code has {z.shape[0]} dims, the avatar expects {self.code_dim}")
         if not np.all(np.isfinite(z)):
@@ -91,6 +99,11 @@ class Avatar:
                 h.update(repr(sorted(self.dynamics.rules.items())).encode())
                 h.update(repr([n.config.to_json() for n in self.dynamics.networks().values()]).encode())
                 arrays += [(k, t.detach().cpu().numpy()) for k, t in sorted(self.dynamics.state_dict().items())]
+                rig = self.dynamics.rig
+                if rig is not None:
+                    h.update(repr((rig.channels, rig.carrier, rig.turns_covariance)).encode())
+                    arrays += [("rig.support", rig.support), ("rig.deltas", rig.deltas), ("rig.scale", rig.scale),
+                               ("rig.bias", rig.bias), ("rig.transform", rig.transform)]
             for name, arr in arrays:
                 a = np.ascontiguousarray(arr)
                 h.update(f"{name}{a.dtype.str}{a.shape}".encode())
@@ -111,7 +124,8 @@ class Avatar:
         """
         if self.dynamics is None:
             raise ValueError("this avatar has no dynamics")
-        zt = torch.from_numpy(self.check_code(z))
+        zfull = self.check_code(z)
+        zt = torch.from_numpy(zfull[: self.dynamics.network_dim])
         t = self._tensors()
         blend = blend_tensors(t, self.cloud.blend_names)
         by = {}
@@ -126,6 +140,11 @@ class Avatar:
             by[key] = acc
             if timings is not None:
                 timings[key] = (time.perf_counter() - t0) * 1000.0
+        if self.dynamics.rig is not None:
+            t0 = time.perf_counter()
+            by[RIG] = {"position": self.dynamics.rig_offsets(zfull)}
+            if timings is not None:
+                timings[RIG] = (time.perf_counter() - t0) * 1000.0
         return Offsets(by)
 
     @torch.no_grad()
@@ -148,4 +167,15 @@ class Avatar:
             z = self.neutral_code() if z is None else z
             off = self.offsets_reference(z) if reference else self.offsets(z, timings=timings)
             posed = to_posed_gaussians(apply_offsets(self._tensors(), off, self.dynamics.rules))
+            rig = self.dynamics.rig
+            if rig is not None and not rig.identity_transform:
+                posed = rig_transformed(posed, rig)
         return posed if head is None else transform_posed(posed, head)
+
+
+def rig_transformed(posed: PosedGaussians, rig: LinearRig) -> PosedGaussians:
+    """Posed Gaussians through the rig's rest transform: the centres only unless the rig turns covariances."""
+    if rig.turns_covariance:
+        return transform_posed(posed, rig.transform)
+    return PosedGaussians(rig.move_centres(posed.means), posed.quats, posed.scales, posed.opacities, posed.sh,
+                          posed.latent)

@@ -22,6 +22,7 @@ import torch
 from torch import nn
 
 from npga_core.model.gaussians import GaussianCloud, PosedGaussians
+from npga_core.model.linear_rig import LinearRig
 from npga_core.model.networks import (
     ACTIVATIONS,
     ATTRIBUTES,
@@ -32,7 +33,7 @@ from npga_core.model.networks import (
     strict_int,
 )
 
-__all__ = ["ACTIVATIONS", "ATTRIBUTES", "ATTRIBUTE_OPS", "MAX_POS_FREQS", "RULES", "ConditionedMLP", "Dynamics",
+__all__ = ["ACTIVATIONS", "ATTRIBUTES", "ATTRIBUTE_OPS", "MAX_POS_FREQS", "RIG", "RULES", "ConditionedMLP", "Dynamics",
            "MLPConfig", "Offsets", "Route", "apply_offsets", "cloud_tensors", "output_widths", "strict_int",
            "to_posed_gaussians"]
 
@@ -150,9 +151,14 @@ class Offsets:
         return self.by_network.get("G", {})
 
 
-def attribute_widths(networks: dict[str, ConditionedMLP]) -> dict[str, int]:
-    """Width of the summed offset of each attribute the networks reach (the widest route end), canonical order."""
-    widths: dict[str, int] = {}
+#: The name under which a rig's offsets appear beside the networks' (`Offsets.by_network`).
+RIG = "rig"
+
+
+def attribute_widths(networks: dict[str, ConditionedMLP], rig: bool = False) -> dict[str, int]:
+    """Width of the summed offset of each attribute the networks (and a rig: position) reach (the widest route
+    end), canonical order."""
+    widths: dict[str, int] = {"position": 3} if rig else {}
     for net in networks.values():
         for r in net.config.routes or []:
             widths[r.attribute] = max(widths.get(r.attribute, 0), r.to + r.width)
@@ -180,12 +186,13 @@ class Dynamics(nn.Module):
     def __init__(self, F: ConditionedMLP | None = None, G: ConditionedMLP | None = None,
                  rotation_op: str = "compose", *, networks: dict[str, ConditionedMLP] | None = None,
                  rules: dict[str, str] | None = None, condition: dict | None = None,
-                 blend_notes: dict[str, str] | None = None):
+                 blend_notes: dict[str, str] | None = None, rig: LinearRig | None = None):
         super().__init__()
         if networks is None:
             networks = {k: m for k, m in (("F", F), ("G", G)) if m is not None}
-        if not networks:
-            raise ValueError("Dynamics needs at least one network")
+        if not networks and rig is None:
+            raise ValueError("Dynamics needs at least one network or a rig")
+        self.rig = rig
         self.nets = nn.ModuleDict(networks)
         self.rules = {a: RULES[a][0] for a in RULES}
         self.rules["rotation"] = rotation_op
@@ -213,27 +220,46 @@ class Dynamics(nn.Module):
     def rotation_op(self) -> str:
         return self.rules["rotation"]
 
-    def _first(self) -> MLPConfig:
-        return next(iter(self.nets.values())).config  # type: ignore[return-value]
+    def _first(self) -> MLPConfig | None:
+        return next(iter(self.nets.values())).config if len(self.nets) else None  # type: ignore[return-value]
 
     @property
     def expression_dim(self) -> int:
-        """D_e: width of the expression code part of the frame vector."""
-        return self._first().code_dim
+        """D_e: width of the expression code part of the frame vector the networks take (0 without networks)."""
+        first = self._first()
+        return 0 if first is None else first.code_dim
 
     @property
     def condition_dim(self) -> int:
         """D_c: width of the condition part of the frame vector (0 without one)."""
-        return self._first().condition_dim
+        first = self._first()
+        return 0 if first is None else first.condition_dim
 
     @property
-    def code_dim(self) -> int:
-        """Width of the frame vector [code, condition] the networks take."""
+    def network_dim(self) -> int:
+        """Width of the part [code, condition] of the frame vector that the networks take."""
         return self.expression_dim + self.condition_dim
 
     @property
+    def rig_dim(self) -> int:
+        """Width of the rig's part of the frame vector (its channel weights; 0 without a rig)."""
+        return 0 if self.rig is None else self.rig.n_channels
+
+    @property
+    def code_dim(self) -> int:
+        """Width of the frame vector [code, condition, rig weights]."""
+        return self.network_dim + self.rig_dim
+
+    @property
     def feature_dim(self) -> int:
-        return self._first().feature_dim
+        first = self._first()
+        return 0 if first is None else first.feature_dim
+
+    def rig_offsets(self, z: torch.Tensor | np.ndarray, rows: slice | np.ndarray | None = None) -> torch.Tensor:
+        """The rig's position displacement of `rows` at frame vector z (its last `rig_dim` values)."""
+        assert self.rig is not None
+        w = np.asarray(z, np.float32).reshape(-1)[self.network_dim :]
+        return self.rig.offsets(w, rows)
 
     def networks(self) -> dict[str, ConditionedMLP]:
         return dict(self.nets.items())  # type: ignore[arg-type]
@@ -241,30 +267,36 @@ class Dynamics(nn.Module):
     @property
     def simple(self) -> bool:
         """Expressible in format version 1 (F and/or G of the fixed architecture, no blend, no condition)."""
-        return (set(self.nets) <= {"F", "G"} and all(n.config.simple for n in self.nets.values())  # type: ignore[union-attr]
+        return (self.rig is None and len(self.nets) > 0
+                and set(self.nets) <= {"F", "G"} and all(n.config.simple for n in self.nets.values())  # type: ignore[union-attr]
                 and self.rules["rotation"] in ("compose", "add")
                 and all(r == RULES[a][0] for a, r in self.rules.items() if a != "rotation")
                 and (self.F is None or [n for n, _ in self.F.config.outputs] == ["position"]))
 
     def attribute_widths(self) -> dict[str, int]:
-        return attribute_widths(self.networks())
+        return attribute_widths(self.networks(), self.rig is not None)
 
     def offsets(self, mu: torch.Tensor, f: torch.Tensor, z: torch.Tensor,
                 blend: dict[str, torch.Tensor] | None = None) -> Offsets:
         """Reference offsets (plain forward passes); `blend` maps blend names to (N,) weights."""
         by = {}
+        zn = z[: self.network_dim]
         for key, net in self.nets.items():
-            out = net(mu, f, z)
+            out = net(mu, f, zn)
             widths = attribute_widths({key: net})  # type: ignore[dict-item]
             acc = {a: torch.zeros(out.shape[0], w, dtype=out.dtype) for a, w in widths.items()}
             w = None if net.config.blend is None else (blend or {})[net.config.blend]  # type: ignore[index, union-attr]
             route_into(acc, net, out, w)  # type: ignore[arg-type]
             by[key] = acc
+        if self.rig is not None:
+            by[RIG] = {"position": self.rig_offsets(z)}
         return Offsets(by)
 
     def validate_for(self, cloud: GaussianCloud) -> None:
         """Raise ValueError if the networks do not fit the cloud's layout."""
         widths = output_widths(cloud.sh_degree, cloud.latent_dim)
+        if self.rig is not None and self.rig.n_points != len(cloud):
+            raise ValueError(f"the rig moves {self.rig.n_points} points, the cloud has {len(cloud)} Gaussians")
         for key, net in self.networks().items():
             c = net.config
             if c.feature_dim != cloud.feature_dim:

@@ -28,7 +28,7 @@ import numpy as np
 import torch
 
 from npga_core.model.avatar import Avatar
-from npga_core.model.dynamics import ATTRIBUTE_OPS, cloud_tensors
+from npga_core.model.dynamics import ATTRIBUTE_OPS, RIG, cloud_tensors
 from npga_core.posing.chains import FUSED, Chain, Scratch, low_inputs, onednn_available
 from npga_core.posing.device import resolve_device
 from npga_core.posing.poserows import (
@@ -100,7 +100,8 @@ class FastPoser:
         self.device = device if isinstance(device, torch.device) else resolve_device(device)
         self.n = len(avatar)
         nets = dynamics.networks()
-        self.layout = OffsetLayout.of(nets)
+        self.rig = dynamics.rig
+        self.layout = OffsetLayout.of(nets, rig=self.rig is not None)
         self.rules = dict(dynamics.rules)
         self.rotation_op = dynamics.rotation_op
         if self.device.type == "cpu":
@@ -190,8 +191,8 @@ class FastPoser:
                            Chain.pack(n, self.chunk, dtype) if self.kernel == "onednn" and k in self._fused else None,
                            low)
                   for k, n in self.nets.items()}
-        width = max(c.scratch_width for c in chains.values())
-        out_width = max(n.config.out_dim for n in self.nets.values())
+        width = max((c.scratch_width for c in chains.values()), default=1)
+        out_width = max((n.config.out_dim for n in self.nets.values()), default=1)
         return _Lane(index, chains, torch.empty(self.chunk, self.layout.width, device=self.device),
                      Scratch(self.chunk, width, self.device), torch.empty(self.chunk * out_width, device=self.device))
 
@@ -271,8 +272,10 @@ class FastPoser:
 
     @staticmethod
     def supported(avatar: Avatar) -> bool:
-        """True when the avatar has dynamics (every network description runs on this path)."""
-        return avatar.dynamics is not None
+        """True when the avatar has dynamics (every network description runs on this path; a rig too, unless its
+        rest transform turns the covariances, which `Avatar.pose` does)."""
+        rig = avatar.rig
+        return avatar.dynamics is not None and (rig is None or rig.identity_transform or not rig.turns_covariance)
 
     @property
     def cache_bytes(self) -> int:
@@ -286,8 +289,13 @@ class FastPoser:
         if self.avatar.version != self.version:
             raise RuntimeError("the avatar was edited after this FastPoser was built (invalidate_caches); "
                                "build a new one")
-        zt = torch.from_numpy(self.avatar.check_code(z)).to(self.device)
-        terms = {}
+        zfull = self.avatar.check_code(z)
+        dynamics = self.avatar.dynamics
+        assert dynamics is not None
+        zt = torch.from_numpy(zfull[: dynamics.network_dim]).to(self.device)
+        terms: dict[str, tuple] = {}
+        if self.rig is not None:
+            terms[RIG] = (zfull[dynamics.network_dim :],)
         chains = self._lanes[0].chains
         for key, net in self.nets.items():
             t = net.code_term(zt)
@@ -328,6 +336,12 @@ class FastPoser:
             chain.run(first, enc, t, bias, lane.scratch, dest, consts, low)
             self._route(key, dest, rows, lo, hi, out_rows[lo - s : hi - s])
             lane.busy[key] = lane.busy.get(key, 0.0) + time.perf_counter() - t0
+        if self.rig is not None:
+            t0 = time.perf_counter()
+            c, _ = self.layout.blocks["position"]
+            which = slice(s, e) if rows.index is None else rows.index[s:e]
+            out_rows[:, c : c + 3] += self.rig.offsets(terms[RIG][0], which).to(out_rows.device)
+            lane.busy[RIG] = lane.busy.get(RIG, 0.0) + time.perf_counter() - t0
         return out_rows
 
     def _route(self, key: str, out: torch.Tensor, rows: RowSet, lo: int, hi: int, dest: torch.Tensor) -> None:
@@ -512,6 +526,9 @@ class FastPoser:
         d = block("position")
         means = soa["means"][:, s:e]
         out["means"][s:e].copy_((means if d is None else ATTRIBUTE_OPS["position"].apply(means, d)).t())
+        if self.rig is not None and not self.rig.identity_transform:  # the centres only (`supported`)
+            m = torch.from_numpy(self.rig.transform.astype(np.float32)).to(out["means"].device)
+            out["means"][s:e] = out["means"][s:e] @ m[:3, :3].t() + m[:3, 3]
         out["quats"][s:e].copy_(self._rotate(block("rotation"), s, e).t())
         log_s = soa["log_scales"][:, s:e]
         if (d := block("scale")) is not None:

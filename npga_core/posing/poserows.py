@@ -24,9 +24,9 @@ class OffsetLayout:
         return sum(w for _, w in self.blocks.values())
 
     @staticmethod
-    def of(networks: dict[str, ConditionedMLP]) -> OffsetLayout:
+    def of(networks: dict[str, ConditionedMLP], rig: bool = False) -> OffsetLayout:
         blocks, col = {}, 0
-        for name, width in attribute_widths(networks).items():
+        for name, width in attribute_widths(networks, rig).items():
             blocks[name] = (col, width)
             col += width
         return OffsetLayout(blocks)
