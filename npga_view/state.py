@@ -22,7 +22,7 @@ from npga_core.inspection.inspector import InspectSettings
 from npga_core.posing.smoothing import check_playback
 from npga_view.actions import Action
 
-MAX_SLIDERS = 50
+MAX_SLIDERS = 64  # PCA directions, or a rig's channels (ARKit's 52 and more)
 RENDER_MODES = ("rgb", "depth", "alpha")
 SESSION_VERSION = 1
 MAX_SESSION_BYTES = 4 * 2**20  # sessions, recent files and presets are small JSON files

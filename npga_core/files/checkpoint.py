@@ -24,7 +24,7 @@ import numpy as np
 
 from npga_core import __version__
 from npga_core.errors import AvatarFileError
-from npga_core.files import blendshapes_field
+from npga_core.files import blendshapes_field, rig_field
 from npga_core.files.atomic import atomic_write
 from npga_core.files.dynamics_header import (
     HeaderError,
@@ -36,19 +36,20 @@ from npga_core.files.dynamics_header import (
     dynamics_section,
     dynamics_tensors,
 )
-from npga_core.files.untrusted import MAX_JSON_DEPTH, open_regular, parse_json, regular_file
+from npga_core.files.untrusted import MAX_JSON_DEPTH, MAX_POSITION, open_regular, parse_json, regular_file
 from npga_core.model.avatar import Avatar
 from npga_core.model.cnn import CNNConfig
+from npga_core.model.dynamics import Dynamics
 from npga_core.model.expression import ExpressionSpace
 from npga_core.model.gaussians import GaussianCloud, sh_coeff_count
 
 MAGIC = b"\x89NPGA\r\n\x1a"
 #: The newest version this code reads and writes; a file is written in the oldest version that holds it.
-FORMAT_VERSION = 3
+FORMAT_VERSION = 4
 ALIGN = 64
 MAX_HEADER_BYTES = 64 * 1024 * 1024
 MAX_PARAMETER = 1e8  # largest magnitude of a network weight, input normalisation or expression value
-_DTYPES: dict[str, np.dtype] = {"float32": np.dtype("<f4"), "int16": np.dtype("<i2")}
+_DTYPES: dict[str, np.dtype] = {"float32": np.dtype("<f4"), "int16": np.dtype("<i2"), "int32": np.dtype("<i4")}
 
 Spec = dict[str, tuple[str, tuple[int, ...]]]
 
@@ -96,6 +97,9 @@ def expected_tensors(header: dict) -> Spec:
     bs = blendshapes_field.header_entry(header)
     if bs:
         spec.update(blendshapes_field.tensors(bs))
+    rig = rig_field.header_entry(header)
+    if rig:
+        spec.update(rig_field.tensors(rig, n))
     return spec
 
 
@@ -105,7 +109,9 @@ def expected_tensors(header: dict) -> Spec:
 
 def format_version_for(avatar: Avatar) -> int:
     """The oldest format version that holds `avatar` (1 for NPGA's F and G, 2 for any other dynamics, 3 with a
-    blendshape basis)."""
+    blendshape basis, 4 with a rig)."""
+    if avatar.rig is not None:
+        return rig_field.RIG_VERSION
     if avatar.blendshapes is not None:
         return blendshapes_field.BLENDSHAPES_VERSION
     simple = (avatar.dynamics is None or avatar.dynamics.simple) and (avatar.cnn is None or avatar.cnn.config.simple)
@@ -148,8 +154,12 @@ def _avatar_header(avatar: Avatar, provenance: dict) -> tuple[dict, dict[str, np
         arrays["gaussians.blend_weights"] = c.blend_weights
     if avatar.dynamics is not None:
         avatar.dynamics.validate_for(c)
-        header["dynamics"], dyn_arrays = dynamics_section(avatar.dynamics, version)
-        arrays.update(dyn_arrays)
+        if avatar.dynamics.networks():
+            header["dynamics"], dyn_arrays = dynamics_section(avatar.dynamics, version)
+            arrays.update(dyn_arrays)
+        if avatar.dynamics.rig is not None:
+            header["rig"], rig_arrays = rig_field.section(avatar.dynamics.rig)
+            arrays.update(rig_arrays)
     if avatar.cnn is not None:
         avatar.cnn.config.validate(c.latent_dim)
         header["cnn"], cnn_arrays = cnn_section(avatar.cnn)
@@ -257,6 +267,12 @@ def _read_header(path: Path) -> tuple[dict, int]:
     _check_version(header)
     _check_header_schema(header)
     _check_blendshapes(header)
+    rig = rig_field.header_entry(header)
+    if rig is not None:
+        try:
+            rig_field.check_section(rig, header["gaussians"]["count"])
+        except ValueError as e:
+            raise _Invalid(str(e)) from None
     data_start = 16 + hlen
     if data_start % ALIGN:
         raise _Invalid(f"data section starts at {data_start}, not a multiple of {ALIGN}")
@@ -488,6 +504,16 @@ def _build_avatar(path: Path, header: dict, t: dict[str, np.ndarray]) -> Avatar:
             dynamics.validate_for(cloud)
         except ValueError as e:
             raise _Invalid(f"dynamics do not fit the Gaussians: {e}") from None
+    rig_entry = rig_field.header_entry(header)
+    if rig_entry:
+        try:
+            rig = rig_field.build(rig_entry, t, len(cloud), MAX_POSITION)
+        except ValueError as e:
+            raise _Invalid(f"rig: {e}") from None
+        if dynamics is None:
+            dynamics = Dynamics(networks={}, rig=rig)
+        else:
+            dynamics.rig = rig
     cnn = None
     if header.get("cnn"):
         try:

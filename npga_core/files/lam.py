@@ -222,7 +222,7 @@ def lam_avatar(splats: GaussianCloud, skin: LamSkin, source: str, where: str, ex
         deltas[k, np.searchsorted(support, rows)] = vals
     scale = np.array([PLAYER_SCALE.get(c, 1.0) for c in order], np.float32)
     rig = LinearRig(tuple(order), support, deltas, n, scale=scale, carrier="vertex", vertices=vertices,
-                    transform=skin.head, source="LAM skin.glb",
+                    transform=skin.head.astype(np.float32).astype(np.float64), source="LAM skin.glb",
                     notes={"weights": RESCALE_NOTE,
                            "player capacity": f"{n * (len(order) + 1):,} of the {PLAYER_TEXELS:,} morph texels "
                                               "its player holds",

@@ -60,6 +60,19 @@ class Avatar:
         """The linear blendshape rig of the dynamics, if any (its weights end the frame vector)."""
         return None if self.dynamics is None else self.dynamics.rig
 
+    @property
+    def slider_channels(self) -> tuple[str, ...] | None:
+        """The rig's channel names when the expression sliders are its weights (an avatar posed by a rig alone whose
+        expression space is its channels: identity directions, unit std, mean 0); None for PCA directions."""
+        rig, ex = self.rig, self.expression
+        if rig is None or ex is None or self.dynamics is None or self.dynamics.network_dim:
+            return None
+        k = rig.n_channels
+        if ex.n_components != k or not (np.array_equal(ex.basis, np.eye(k, dtype=ex.basis.dtype))
+                                         and np.all(ex.std == 1) and not ex.mean.any()):
+            return None
+        return rig.channels
+
     def __len__(self) -> int:
         return len(self.cloud)
 

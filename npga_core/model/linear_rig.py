@@ -37,8 +37,8 @@ class LinearRig:
     support: np.ndarray  # (S,) int64 ascending rows that any channel moves
     deltas: np.ndarray  # (K, S, 3) float32 displacement per channel at weight 1 (after scale)
     n_points: int
-    scale: np.ndarray | None = None  # (K,) runtime scale (None: ones)
-    bias: np.ndarray | None = None  # (K,) runtime bias (None: zeros)
+    scale: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))  # (K,) runtime scale (empty: ones)
+    bias: np.ndarray = field(default_factory=lambda: np.zeros(0, np.float32))  # (K,) runtime bias (empty: zeros)
     carrier: str = "gaussian"
     vertices: np.ndarray | None = None  # (N, 3) rest positions of the carrying vertices (carrier "vertex")
     transform: np.ndarray = field(default_factory=lambda: np.eye(4, dtype=np.float64))
@@ -59,8 +59,8 @@ class LinearRig:
             raise ValueError(f"rig deltas have shape {self.deltas.shape}, expected ({k}, {s}, 3)")
         if s and (self.support[0] < 0 or self.support[-1] >= self.n_points or np.any(np.diff(self.support) <= 0)):
             raise ValueError(f"rig support rows must be ascending, distinct and within 0..{self.n_points - 1}")
-        self.scale = np.ones(k, np.float32) if self.scale is None else np.asarray(self.scale, np.float32)
-        self.bias = np.zeros(k, np.float32) if self.bias is None else np.asarray(self.bias, np.float32)
+        self.scale = np.ones(k, np.float32) if np.size(self.scale) == 0 else np.asarray(self.scale, np.float32)
+        self.bias = np.zeros(k, np.float32) if np.size(self.bias) == 0 else np.asarray(self.bias, np.float32)
         if self.scale.shape != (k,) or self.bias.shape != (k,):
             raise ValueError(f"rig scale and bias must have {k} values")
         if self.carrier not in CARRIERS:

@@ -1,5 +1,6 @@
-"""`npga-view import gha CKPT_DIR [--config GHA_YAML] [--legacy-rotation] --out AVATAR.npga`: another method's
-checkpoint as an `.npga` avatar (format version 2), written atomically."""
+"""`npga-view import gha CKPT_DIR [--config GHA_YAML] [--legacy-rotation] --out AVATAR.npga` and
+`npga-view import lam AVATAR.zip --out AVATAR.npga`: another method's avatar as an `.npga` (format version 2 for
+GHA's networks, 4 for LAM's rig), written atomically."""
 
 from __future__ import annotations
 
@@ -8,13 +9,14 @@ from pathlib import Path
 
 from npga_core.errors import AvatarFileError
 
-KINDS = ("gha",)
+KINDS = ("gha", "lam")
 
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("kind", choices=KINDS, help="the method the checkpoint comes from: gha = Gaussian-Head-Avatar "
-                   "(a folder with gaussianhead_latest and, optionally, supres_latest)")
-    p.add_argument("checkpoint", help="the checkpoint folder (or the gaussianhead_latest file)")
+                   "(a folder with gaussianhead_latest and, optionally, supres_latest); lam = a LAM avatar zip "
+                   "as its web player loads it (offset.ply + skin.glb)")
+    p.add_argument("checkpoint", help="the checkpoint folder (or the gaussianhead_latest file), or the LAM zip")
     p.add_argument("--config", default=None, help="GHA's YAML config the avatar was trained with (distance "
                    "thresholds, scales); default: the values of GHA's published training config")
     p.add_argument("--legacy-rotation", action="store_true", help="rotations as GHA's code before 2024-07-12 "
@@ -31,6 +33,8 @@ def run(args: argparse.Namespace) -> int:
     out = Path(args.out)
     if out.exists() and out.is_dir():
         raise AvatarFileError(out, "is a folder; give the .npga file to write")
+    if args.kind == "lam":
+        return _import_lam(args, out)
     from npga_core.files.loading import load_sequence
 
     seq = load_sequence(args.sequence) if args.sequence else None
@@ -44,4 +48,19 @@ def run(args: argparse.Namespace) -> int:
           f"(expression {avatar.code_dim - avatar.condition_dim} + head pose {avatar.condition_dim}), "
           f"super-resolution: {f'x{avatar.cnn.config.upsample} CNN' if avatar.cnn else 'none'}; "
           f"settings from {p['settings_from']}; rotation {p['rotation_normalisation']}")
+    return 0
+
+
+def _import_lam(args: argparse.Namespace, out: Path) -> int:
+    from npga_core.files.checkpoint import save_avatar
+    from npga_core.files.lam import read_lam_zip
+
+    for flag in ("config", "sequence"):
+        if getattr(args, flag):
+            raise AvatarFileError(args.checkpoint, f"--{flag} applies to gha imports, not to a LAM zip")
+    avatar = read_lam_zip(args.checkpoint)
+    save_avatar(avatar, out)
+    rig = avatar.rig
+    assert rig is not None
+    print(f"{out}: {len(avatar):,} Gaussians, {rig.describe()}; {rig.notes['weights']}")
     return 0

@@ -64,6 +64,8 @@ def summary(avatar: Avatar, path: str, load_s: float) -> str:
             lines.append(f"  blend weight {name}: {note}")
         for key, net in dyn.networks().items():
             lines += _mlp_lines(key, net)
+        if dyn.rig is not None:
+            lines += _rig_lines(dyn.rig, dyn.network_dim)
     if avatar.cnn is None:
         lines.append("  CNN: none")
     else:
@@ -78,13 +80,7 @@ def summary(avatar: Avatar, path: str, load_s: float) -> str:
         scale = f", x{cfg.upsample} upsampling" if cfg.upsample > 1 else ""
         lines.append(f"  CNN: {len(cfg.layers)} layers on {cfg.input} ({layers})"
                      f"{', residual' if cfg.residual else ''}{scale}, {cfg.macs_per_pixel() / 1e6:.2f} MMAC/pixel")
-    lines.append(f"  expression dim: {avatar.code_dim}")
-    ex = avatar.expression
-    if ex is not None:
-        top = ", ".join(f"{s:.3g}" for s in ex.std[:5])
-        lines.append(f"  PCA components: {ex.n_components} (std of the first: {top})")
-        if ex.named:
-            lines.append(f"  named expressions: {', '.join(shown(n) for n in ex.named)}")
+    lines += _expression_lines(avatar)
     bs = avatar.blendshapes
     if bs is not None:
         lines.append(f"  blendshapes: {len(bs.names)} -> {bs.code_dim}-D codes ({shown(bs.source)}): "
@@ -97,6 +93,30 @@ def summary(avatar: Avatar, path: str, load_s: float) -> str:
         if text:
             lines.append(f"  provenance: {text}")
     return "\n".join(lines)
+
+
+def _expression_lines(avatar: Avatar) -> list[str]:
+    """The expression code's width, its PCA directions (not for a rig's channel sliders), named expressions."""
+    lines = [f"  expression dim: {avatar.code_dim}"]
+    ex = avatar.expression
+    if ex is not None:
+        if avatar.slider_channels is None:
+            top = ", ".join(f"{s:.3g}" for s in ex.std[:5])
+            lines.append(f"  PCA components: {ex.n_components} (std of the first: {top})")
+        if ex.named:
+            lines.append(f"  named expressions: {', '.join(shown(n) for n in ex.named)}")
+    return lines
+
+
+def _rig_lines(rig, first: int) -> list[str]:
+    """The rig: its channels, what moves, the runtime rescaling and what the source's runtime does."""
+    lines = [f"  rig: {shown(rig.describe())}",
+             f"  rig channels (frame vector {first}..{first + rig.n_channels - 1}, sliders 0..1): "
+             + ", ".join(shown(c) + ("" if s == 1.0 else f" x{s:g}") + ("" if b == 0.0 else f" {b:+g}")
+                         for c, s, b in zip(rig.channels, rig.scale, rig.bias, strict=True))]
+    for key, note in rig.notes.items():
+        lines.append(f"  rig {shown(key)}: {shown(note)}")
+    return lines
 
 
 def run(args: argparse.Namespace) -> int:

@@ -95,7 +95,12 @@ class ActionController:
             return
         st.sliders[:] = 0
         k = min(st.n_sliders, st.sliders.size)
-        st.sliders[:k] = np.clip(np.random.default_rng().standard_normal(k), -2.5, 2.5)
+        rng = np.random.default_rng()
+        avatar = self.host.avatar
+        if avatar is not None and avatar.slider_channels is not None:  # weights: a quarter of the channels on, 0..1
+            st.sliders[:k] = rng.uniform(0.0, 1.0, k) * (rng.random(k) < 0.25)
+        else:
+            st.sliders[:k] = np.clip(rng.standard_normal(k), -2.5, 2.5)
         st.follow_sequence = False
 
     def _sliders_from_frame(self, a: A.SlidersFromFrame) -> None:
@@ -155,11 +160,11 @@ class ActionController:
         old_avatar, old_seq = st.avatar_path, st.sequence_path
         st.load_session(path)
         cam, sliders = st.camera, st.sliders.copy()
-        seq_path = st.sequence_path
+        seq_path, time_s, follow = st.sequence_path, st.timeline.time_s, st.follow_sequence
         if st.avatar_path and st.avatar_path != old_avatar:
             host.open_avatar(st.avatar_path)
-        if seq_path and seq_path != old_seq:
-            host.open_sequence(seq_path)
+        if seq_path and seq_path != old_seq and host.open_sequence(seq_path):
+            st.timeline.time_s, st.follow_sequence = time_s, follow  # the session's place, not the start
         st.camera = cam
         if host.avatar is not None and sliders.size == st.sliders.size:
             st.sliders = sliders

@@ -1,4 +1,5 @@
-"""Expression: sliders along the top-k PCA directions (in std), reset, random, from frame, presets, the pad."""
+"""Expression: sliders along the top-k PCA directions (in std), or a rig's named channels (0..1: an avatar posed
+by a linear rig alone, such as LAM's ARKit shapes); reset, random, from frame, presets, the pad."""
 
 from __future__ import annotations
 
@@ -26,8 +27,13 @@ class ExpressionPanel:
             imgui.text_disabled("This avatar has no expression space.")
             return
         ex = a.expression
+        channels = a.slider_channels
         k_max = min(MAX_SLIDERS, ex.n_components)
-        _, state.n_sliders = imgui.slider_int("Directions", min(state.n_sliders, k_max), 1, k_max)
+        if channels is None:
+            _, state.n_sliders = imgui.slider_int("Directions", min(state.n_sliders, k_max), 1, k_max)
+        else:
+            state.n_sliders = k_max
+            imgui.text_disabled(f"{len(channels)} rig channels (weights; 0 = rest)")
         if info.sequence is not None:
             _, state.follow_sequence = imgui.checkbox("Follow sequence", state.follow_sequence)
             remember(info, "follow_sequence")
@@ -41,12 +47,7 @@ class ExpressionPanel:
             imgui.same_line()
             if imgui.button("From frame"):
                 state.actions.append(A.SlidersFromFrame())
-        for i in range(min(state.n_sliders, state.sliders.size)):
-            changed, v = imgui.slider_float(f"PC {i + 1}##pc{i}", float(state.sliders[i]), -3.0, 3.0, "%+.2f sd")
-            remember(info, f"slider{i}")
-            if changed:
-                state.sliders[i] = v
-                state.follow_sequence = False
+        self._sliders(state, info, channels)
         if imgui.tree_node("Presets"):
             for name in list(ex.named) + [p for p in state.presets if p not in ex.named]:
                 if imgui.selectable(shown(name), False)[0]:
@@ -58,3 +59,18 @@ class ExpressionPanel:
                 state.actions.append(A.SavePreset(self.preset_name.strip()))
             imgui.tree_pop()
         self.pad.draw(state, info)
+
+    @staticmethod
+    def _sliders(state: ViewerState, info: AppInfo, channels: tuple[str, ...] | None) -> None:
+        """PCA directions in std, or the rig's channels 0..1."""
+        for i in range(min(state.n_sliders, state.sliders.size)):
+            if channels is None:
+                changed, v = imgui.slider_float(f"PC {i + 1}##pc{i}", float(state.sliders[i]), -3.0, 3.0,
+                                                "%+.2f sd")
+            else:
+                changed, v = imgui.slider_float(f"{shown(channels[i])}##pc{i}", float(state.sliders[i]), 0.0, 1.0,
+                                                "%.2f")
+            remember(info, f"slider{i}")
+            if changed:
+                state.sliders[i] = v
+                state.follow_sequence = False
