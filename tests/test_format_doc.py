@@ -197,11 +197,40 @@ def test_blendshape_section_matches_the_code(tmp_path):
     path = tmp_path / "bs.npga"
     save_avatar(avatar, path)
     header = read_header(path)[0]
-    assert header["format_version"] == FORMAT_VERSION == 3
+    assert header["format_version"] == 3 and FORMAT_VERSION == 4
     section = _section(BLENDSHAPES_HEADING)
     rows = dict(re.findall(r"^\|\s*`(blendshapes\.[^`]+)`\s*\|[^|]*\|\s*(\w+)\s*\|", section, re.M))
     implied = {n: dt for n, (dt, _) in expected_tensors(header).items() if n.startswith("blendshapes.")}
     assert rows == implied
     keys = set(re.findall(r"^\|\s*`(\w+)`\s*\|", section.split("### `blendshapes`")[1].split("| name |")[0], re.M))
     assert keys == set(header["blendshapes"])
-    assert "currently > 3" in _section("## 8. Validation: what the reader rejects")
+    assert "currently > 4" in _section("## 8. Validation: what the reader rejects")
+
+
+RIG_HEADING = "## 17. Format version 4: a linear blendshape rig"
+
+
+def test_rig_section_matches_the_code(tmp_path):
+    """Section 17's keys and tensor table are what `save_avatar` writes for a rig (with stored vertices)."""
+    from npga_core.model.linear_rig import LinearRig
+
+    avatar = make_synthetic_avatar(20, code_dim=6, hidden=8, depth=2, n_components=3)
+    rig = LinearRig(("jawOpen", "eyeBlinkLeft"), np.array([1, 5]), np.ones((2, 2, 3), np.float32), 20,
+                    carrier="vertex", vertices=np.zeros((20, 3), np.float32))
+    avatar.dynamics.rig = rig
+    avatar.expression = None
+    path = tmp_path / "rig.npga"
+    save_avatar(avatar, path)
+    header = read_header(path)[0]
+    assert header["format_version"] == 4
+    section = _section(RIG_HEADING)
+    rows = dict(re.findall(r"^\|\s*`(rig\.[^`]+)`\s*\|[^|]*\|\s*(\w+)\s*\|", section, re.M))
+    implied = {n: dt for n, (dt, _) in expected_tensors(header).items() if n.startswith("rig.")}
+    assert rows == implied
+    keys = set(re.findall(r"^\|\s*`(\w+)`\s*\|", section.split("### `rig`")[1].split("| name |")[0], re.M))
+    assert keys == set(header["rig"])
+    back = read_avatar(path)
+    z = np.concatenate([np.zeros(6), [0.5, -1.0]]).astype(np.float32)
+    assert np.allclose(back.pose(z).means, avatar.pose(z).means, atol=1e-6)
+    moved = back.pose(z).means - back.pose(np.zeros(8, np.float32)).means
+    assert np.allclose(moved[[1, 5]], -0.5) and np.allclose(np.delete(moved, [1, 5], axis=0), 0.0)

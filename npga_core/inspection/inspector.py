@@ -122,11 +122,12 @@ def offset_values(off: dict[str, np.ndarray], attribute: str = "position", sourc
     return np.linalg.norm(SH_C0 * d[:, :3], axis=1).astype(np.float32)  # colour: DC coefficients only
 
 
-def offset_label(attribute: str, source: str) -> str:
-    who = "all networks" if source == "sum" else source
+def offset_label(attribute: str, source: str, sources: list[str] | None = None) -> str:
+    """The legend of the `offset` mode; `sources` (the offsets' sources, e.g. F and G, or a rig) name the sum."""
+    names = [n for n in (sources or ["F", "G"]) if n != "sum"]
+    who = " + ".join(names) if source == "sum" else source
     return {
-        "position": f"|position offset| of {'F + G' if source == 'sum' else source} (world units)"
-        if source in ("sum", "F", "G") else f"|position offset| of {who} (world units)",
+        "position": f"|position offset| of {who} (world units)",
         "rotation": f"rotation offset of {who} (degrees; (1,0,0,0) + d as a rotation)",
         "scale": f"|log-scale offset| of {who}",
         "opacity": f"opacity offset of {who} (logit)",
@@ -314,10 +315,12 @@ class Inspector:
             return scalar_colouring(x[:, channel], label, s.cmap or ("coolwarm" if signed else "viridis"),
                                     s.value_range, symmetric=signed)
         if name == "offset":
-            v = offset_values(self.offsets(code), s.offset_attr, s.offset_source)
+            off = self.offsets(code)
+            v = offset_values(off, s.offset_attr, s.offset_source)
             signed = s.offset_attr == "opacity"
             rng = s.value_range or (robust_range(v, symmetric=True) if signed else (0.0, robust_range(v)[1]))
-            return scalar_colouring(v, offset_label(s.offset_attr, s.offset_source),
+            return scalar_colouring(v, offset_label(s.offset_attr, s.offset_source,
+                                                    offset_sources(off, s.offset_attr)),
                                     s.cmap or ("coolwarm" if signed else "viridis"), rng)
         if name == "laplacian":
             nbrs = self.graph(s.knn_k)
@@ -327,7 +330,11 @@ class Inspector:
                                     s.value_range or (0.0, robust_range(v)[1]))
         if name == "sensitivity":
             v = self.sensitivity(code, s.direction)
-            return scalar_colouring(v, f"|d mu / d PC {s.direction + 1}| (world units per std)", s.cmap or "viridis",
+            channels = self.avatar.slider_channels
+            label = (f"|d mu / d {channels[s.direction]}| (world units per unit weight)"
+                     if channels is not None and s.direction < len(channels)
+                     else f"|d mu / d PC {s.direction + 1}| (world units per std)")
+            return scalar_colouring(v, label, s.cmap or "viridis",
                                     s.value_range or (0.0, robust_range(v)[1]))
         if name == "opacity":
             return scalar_colouring(posed.opacities, "opacity", s.cmap or "viridis", s.value_range or (0.0, 1.0))

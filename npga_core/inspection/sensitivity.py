@@ -1,4 +1,4 @@
-"""Sensitivity of positions to the expression: exact Jacobian-vector products through F and G.
+"""Sensitivity of positions to the expression: exact Jacobian-vector products through F and G (and a rig).
 
 `position_jvp` gives d mu_i / d s along an expression direction (`expression_direction`: one standard deviation
 along a PCA direction) by forward-mode differentiation through the MLPs (`mlp_jvp`), at the current code.
@@ -104,4 +104,9 @@ def position_jvp(avatar: Avatar, code: np.ndarray, direction: np.ndarray) -> np.
         if first is None:
             first = avatar._first_layer[key] = net.precompute(t["means"], t["features"])
         total += mlp_jvp(net, first, z, v, cols, (t["means"], t["features"]))
+    rig = avatar.dynamics.rig
+    if rig is not None:  # linear: scale_k * delta_k per unit of channel k, then the rest transform's rotation
+        total += rig.offsets(v[avatar.dynamics.network_dim :].numpy(), linear=True)
+        if not rig.identity_transform:
+            total = total @ torch.from_numpy(rig.transform[:3, :3].astype(np.float32)).t()
     return total.numpy()

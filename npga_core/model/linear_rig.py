@@ -87,11 +87,11 @@ class LinearRig:
     def identity_transform(self) -> bool:
         return bool(np.array_equal(self.transform, np.eye(4)))
 
-    def runtime_weights(self, w: np.ndarray | torch.Tensor) -> torch.Tensor:
-        """v = scale * w + bias, float32 (K,)."""
+    def runtime_weights(self, w: np.ndarray | torch.Tensor, linear: bool = False) -> torch.Tensor:
+        """v = scale * w + bias, float32 (K,) (without the bias when `linear`: a direction's derivative)."""
         wt = torch.as_tensor(np.asarray(w, np.float32)).reshape(-1)
         _, _, scale, bias, _ = self._tensors()
-        return wt * scale + bias
+        return wt * scale if linear else wt * scale + bias
 
     def _tensors(self) -> tuple:
         if self._torch is None:
@@ -102,10 +102,12 @@ class LinearRig:
                            torch.from_numpy(self.bias), torch.from_numpy(where))
         return self._torch
 
-    def offsets(self, w: np.ndarray | torch.Tensor, rows: slice | np.ndarray | None = None) -> torch.Tensor:
-        """Position displacements (m, 3) of the points `rows` (a slice, an index array or all) at weights w."""
+    def offsets(self, w: np.ndarray | torch.Tensor, rows: slice | np.ndarray | None = None,
+                linear: bool = False) -> torch.Tensor:
+        """Position displacements (m, 3) of the points `rows` (a slice, an index array or all) at weights w
+        (`linear`: without the channels' bias, the change along a direction w)."""
         flat, support, _, _, where = self._tensors()
-        v = self.runtime_weights(w)
+        v = self.runtime_weights(w, linear)
         if rows is None:
             rows = slice(0, self.n_points)
         if isinstance(rows, slice):

@@ -18,8 +18,8 @@ class ExportError(Exception):
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("avatar", help="a .npga checkpoint, a 3DGS .ply, or 'demo'")
     p.add_argument("--out", required=True, type=Path, help="the .ply file to write")
-    p.add_argument("--expr", type=Path, help="expression code .npy, (D,) or (T, D) with --frame choosing the row "
-                   "(default row 0)")
+    p.add_argument("--expr", help="expression code .npy, (D,) or (T, D) with --frame choosing the row (default row "
+                   "0); or a named expression of the avatar ('jaw open'); or weights 'jawOpen=0.8,eyeBlinkLeft=1'")
     p.add_argument("--sequence", type=Path, help="expression sequence (.npzseq/.npz/.npy or a tracking folder); "
                    "needs --frame")
     p.add_argument("--frame", type=int, default=None, help="frame of --sequence/--expr")
@@ -48,6 +48,17 @@ def expression_code(args: argparse.Namespace, avatar) -> tuple[np.ndarray | None
         raise ExportError("--sequence needs --frame K to choose the expression")
     if avatar.code_dim == 0:
         raise ExportError(f"{source}: the avatar is static (no dynamics), it takes no expression codes")
+    if args.expr is not None:
+        from npga_view.cli.expr_arg import ExprError, named_code
+
+        try:
+            named = named_code(str(args.expr), avatar)
+        except ExprError as e:
+            raise ExportError(str(e)) from None
+        if named is not None:
+            if args.frame is not None:
+                raise ExportError("--frame needs --sequence or an --expr file of several codes")
+            return named, None
     seq = load_sequence(source, basis=avatar.blendshapes)
     seq.check_dim(avatar.code_dim, source)
     frame = 0 if args.frame is None else args.frame

@@ -76,7 +76,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     g.add_argument("--no-legend", action="store_true", help="no legend strip below the picture")
     g.add_argument("--counts", action="store_true",
                    help="print the Gaussian counts (total, in the frustum, drawn, per part) as JSON on stdout")
-    p.add_argument("--expr", type=Path, help="expression code .npy, (D,) or (T, D) with --frame choosing the row")
+    p.add_argument("--expr", help="expression code .npy, (D,) or (T, D) with --frame choosing the row; or a named "
+                   "expression of the avatar ('jaw open'); or blendshape weights 'jawOpen=0.8,eyeBlinkLeft=1'")
     p.add_argument("--sequence", type=Path, help="expression sequence (.npzseq/.npz/.npy or a tracking folder)")
     p.add_argument("--frame", type=int, default=None, help="frame of --sequence/--expr for a single image")
     p.add_argument("--head-pose", choices=("off", "relative", "absolute"), default="off",
@@ -172,6 +173,17 @@ def _codes(args, avatar) -> tuple[np.ndarray | None, float, list[np.ndarray] | N
         return None, 25.0, None
     if avatar.code_dim == 0:
         raise RenderError(f"{source}: the avatar is static (no dynamics), it takes no expression codes")
+    if args.expr is not None:
+        from npga_view.cli.expr_arg import ExprError, named_code
+
+        try:
+            named = named_code(str(args.expr), avatar)
+        except ExprError as e:
+            raise RenderError(str(e)) from None
+        if named is not None:
+            if args.frame is not None:
+                raise RenderError("--frame needs --sequence or an --expr file of several codes")
+            return named[None], 25.0, None
     seq = load_sequence(source, basis=avatar.blendshapes)
     seq.check_dim(avatar.code_dim, source)
     frames: range | list[int]
