@@ -159,7 +159,8 @@ def _exact_in_process(avatar, args, out: dict) -> FastPoser:
         runs.append(t)
     gemms.append(gemm_gflops(args.threads, repeat=2, device=gemm_device))
     med = {k: _median([r.get(k, 0.0) for r in runs]) for k in ("F", "G", "apply", "pose", "offsets")}
-    out["network_ms"] = {k: _median([r.get(k, 0.0) for r in runs]) for k in poser.nets}
+    out["network_ms"] = {k: _median([r.get(k, 0.0) for r in runs])
+                         for k in [*poser.nets, *(["rig"] if poser.rig is not None else [])]}
     best = min(r["offsets"] for r in runs)  # best of the rounds, like the gemm rate it is compared with
     n = len(avatar)
     flop = n * poser.flops_per_gaussian
@@ -479,7 +480,7 @@ def _print(res: dict) -> None:
     nets = res.get("network_ms") or {"F": res.get("F_ms"), "G": res.get("G_ms")}
     times = "  ".join(f"{k} {'-' if v is None else f'{v:.1f} ms'}" for k, v in nets.items())
     print(f"  gemm {f('gemm_gflops', ' GFLOPS')}  |  {times}  apply "
-          f"{f('apply_ms', ' ms')}  ->  networks {f('dynamics_gflops', ' GFLOPS')} = "
+          f"{f('apply_ms', ' ms')}  exact pose {f('exact_pose_ms', ' ms')}  ->  networks {f('dynamics_gflops', ' GFLOPS')} = "
           f"{f('roofline_ratio', '', '{:.2f}')} "
           f"of gemm (median round {f('roofline_ratio_median', '', '{:.2f}')})  "
           f"(Avatar.pose {f('avatar_pose_ms', ' ms')})")
@@ -512,7 +513,8 @@ def run(args: argparse.Namespace) -> int:
 
         sizes = [n for n in args.gaussians if n != 20000] if args.gaussians == list(DEFAULT_SIZES) else args.gaussians
         run_window(sizes, demo=not args.avatars, json_path=args.json, moves=min(args.moves, 6),
-                   seconds=args.window_seconds, precisions=tuple(args.window_precision or ()) or None)
+                   seconds=args.window_seconds, precisions=tuple(args.window_precision or ()) or None,
+                   avatars=args.avatars)
         return 0
     from npga_core.files.checkpoint import save_avatar
     from npga_core.files.loading import DEMO_AVATAR

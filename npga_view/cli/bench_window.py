@@ -279,20 +279,21 @@ def _synthetic(n: int, folder: Path) -> tuple[str, str]:
 
 
 def run(gaussians: list[int], demo: bool, json_path: Path | None, moves: int = 6, seconds: float = 6.0,
-        precisions: tuple[str, ...] | None = None) -> list[dict]:
+        precisions: tuple[str, ...] | None = None, avatars: Sequence[str] = ()) -> list[dict]:
     """Measure the demo and synthetic avatars of the given sizes (budgeting on with and without the merged live
 cloud, and off) and print a table. With `precisions` (e.g. fp32 bf16): the default drawing only, once per
 precision of the exact dynamics, alternating in the same run."""
     from npga_core.files.loading import DEMO_DIR
 
     proc = _start_xvfb()
-    results, live = [], None
+    results, lives = [], []
     try:
         with tempfile.TemporaryDirectory() as tmp:
             cases = []
             if demo:
                 demo_seq = DEMO_DIR / "sequences" / "talking.npzseq"
                 cases.append(("demo", str(demo_seq) if demo_seq.is_file() else None))
+            cases += [(str(a), None) for a in avatars]
             cases += [_synthetic(n, Path(tmp)) for n in gaussians]
             for avatar, seq in cases:
                 print(f"warm-up {avatar}: preview model {warm_up(avatar)}", flush=True)
@@ -301,7 +302,8 @@ precision of the exact dynamics, alternating in the same run."""
                 for budget, lod, precision in modes:
                     results.append(measure(avatar, seq, budget, moves, seconds, lod, precision))
                     print(json.dumps(results[-1]), flush=True)
-            live = measure_live_link("demo", seconds=seconds) if demo else None  # #25: Live Link -> pixels
+            for avatar in (["demo"] if demo else []) + [str(a) for a in avatars]:  # #25: Live Link -> pixels
+                lives.append(measure_live_link(avatar, seconds=seconds))
     finally:
         if proc is not None:
             proc.terminate()
@@ -309,7 +311,7 @@ precision of the exact dynamics, alternating in the same run."""
         json_path.write_text(json.dumps(results, indent=1))
     print(table(results))
     print(profile_table(results))
-    if live is not None:
+    for live in lives:
         print(json.dumps(live))
         print(live_link_table(live))
     return results

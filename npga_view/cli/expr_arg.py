@@ -41,7 +41,11 @@ def named_code(text: str, avatar) -> np.ndarray | None:
             raise ExprError(f"--expr {shown(text)}: {shown(part)!r} is not NAME=WEIGHT (a finite weight)")
         names.append(name.strip())
         values.append(v)
-    match = match_names(names, basis.names)
+    try:
+        match = match_names(names, basis.names)
+    except ValueError as e:
+        raise ExprError(f"--expr {shown(text)}: {e}") from None
     if match.missing:
-        raise ExprError(f"--expr {shown(text)}: the avatar has no shape {', '.join(shown(n) for n in match.missing)}")
+        raise ExprError(f"--expr {shown(text)}: the avatar has no shape "
+                        f"{', '.join(shown(n) for n in match.missing)}")
     return basis.codes(match.matrix @ np.asarray(values, np.float64))
