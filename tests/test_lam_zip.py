@@ -611,6 +611,7 @@ def cli(tmp_path_factory: pytest.TempPathFactory):
                                      "XDG_CACHE_HOME": str(folder / "cache")})
     yield server, folder
     server.close()
+    server.proc.stdout.close()  # (ForkServer.close leaves its reply pipe open)
 
 
 def test_hostile_zips_through_npga_view_info(hostile: dict[str, Path], cli) -> None:

@@ -163,6 +163,7 @@ def test_expr_names_and_weights():
     np.testing.assert_array_equal(named_code("jaw", a), [1.0, 0.0, 0.0])
     np.testing.assert_allclose(named_code("JawOpen=0.5,eyeBlinkLeft=1", a), [0.5, 1.0, 0.0])  # Live Link spelling
     assert named_code("codes.npy", a) is None
-    for bad, why in (("grin", "named expression"), ("jawOpen=nan", "finite"), ("tongueOut=1", "in common"), ("jawOpen=1,tongueOut=1", "no shape")):
+    for bad, why in (("grin", "named expression"), ("jawOpen=nan", "finite"), ("tongueOut=1", "in common"),
+                     ("jawOpen=1,tongueOut=1", "no shape")):
         with pytest.raises(ExprError, match=why):
             named_code(bad, a)

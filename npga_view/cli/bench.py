@@ -480,7 +480,8 @@ def _print(res: dict) -> None:
     nets = res.get("network_ms") or {"F": res.get("F_ms"), "G": res.get("G_ms")}
     times = "  ".join(f"{k} {'-' if v is None else f'{v:.1f} ms'}" for k, v in nets.items())
     print(f"  gemm {f('gemm_gflops', ' GFLOPS')}  |  {times}  apply "
-          f"{f('apply_ms', ' ms')}  exact pose {f('exact_pose_ms', ' ms')}  ->  networks {f('dynamics_gflops', ' GFLOPS')} = "
+          f"{f('apply_ms', ' ms')}  exact pose {f('exact_pose_ms', ' ms')}"
+          f"  ->  networks {f('dynamics_gflops', ' GFLOPS')} = "
           f"{f('roofline_ratio', '', '{:.2f}')} "
           f"of gemm (median round {f('roofline_ratio_median', '', '{:.2f}')})  "
           f"(Avatar.pose {f('avatar_pose_ms', ' ms')})")
