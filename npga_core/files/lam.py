@@ -128,7 +128,7 @@ def read_skin(data: bytes) -> LamSkin:
     skinned = [i for i, n in enumerate(arrays.nodes) if n.mesh is not None and n.skin is not None]
     if not skinned:
         raise GltfError("has no skinned mesh (LAM's player needs one)")
-    node = arrays.nodes[skinned[0]]
+    node = arrays.nodes[skinned[-1]]  # the player keeps the last skinned mesh its traversal meets (152318)
     meshes, skins = g.meshes or [], g.skins or []
     if not isinstance(node.mesh, int) or not 0 <= node.mesh < len(meshes):
         raise GltfError(f"the skinned node names mesh {node.mesh!r}, the file has {len(meshes)}")
@@ -170,7 +170,11 @@ def _morph_targets(arrays: GltfArrays, mesh, prim, n: int) -> tuple[list[str], l
     for k, t in enumerate(targets):
         if not isinstance(t, dict) or "POSITION" not in t:
             raise GltfError(f"morph target {k} ({names[k]!r}) has no POSITION")
-        sparse.append(arrays.sparse_target(t["POSITION"], f"morph target {names[k]!r}", n))
+        rows, values = arrays.sparse_target(t["POSITION"], f"morph target {names[k]!r}", n)
+        if values.size and np.abs(values).max() > MAX_POSITION:
+            raise GltfError(f"morph target {names[k]!r} moves a vertex by {float(np.abs(values).max()):.3g}, beyond "
+                            f"+-{MAX_POSITION:g}")
+        sparse.append((rows, values))
     return list(names), sparse
 
 
@@ -187,10 +191,16 @@ def _head_matrix(arrays: GltfArrays, skin, joints: list) -> np.ndarray:
         ibm = arrays.accessor(skin.inverseBindMatrices, "inverseBindMatrices", ("MAT4",), len(joints))
         if ibm.shape[0] != len(joints) or ibm.dtype != np.float32:
             raise GltfError(f"inverseBindMatrices has {ibm.shape[0]} float matrices for {len(joints)} joints")
-        head_inv = ibm[heads[0]].astype(np.float64).reshape(4, 4).T
-    head = arrays.world_matrix(joints[heads[0]], parent) @ head_inv
+        head_inv = ibm[heads[-1]].astype(np.float64).reshape(4, 4).T
+    # the last joint named 'head' wins, as the player's forEach over the bones (64589-64592)
+    head = arrays.world_matrix(joints[heads[-1]], parent) @ head_inv
     if not np.isfinite(head).all() or not np.allclose(head[3], [0, 0, 0, 1], atol=1e-6):
         raise GltfError("the head joint's matrix is not a finite affine transform")
+    sv = np.linalg.svd(head[:3, :3], compute_uv=False)
+    if not (sv.min() >= 1e-3 and sv.max() <= 1e3 and np.abs(head[:3, 3]).max() <= MAX_POSITION):
+        raise GltfError(f"the head joint's matrix scales by {sv.min():.3g}..{sv.max():.3g} or moves by "
+                        f"{np.abs(head[:3, 3]).max():.3g}: beyond what a head rig does "
+                        f"(0.001..1000, +-{MAX_POSITION:g})")
     head[3] = [0.0, 0.0, 0.0, 1.0]
     return head
 
