@@ -94,6 +94,8 @@ class ViewerApp:
         self.engine: PoseEngine | None = None
         self.sequence: ExpressionSequence | None = None
         self._posed: PosedGaussians | None = None  # a copy of the cloud on screen (before highlighting)
+        self._pending: PosedGaussians | None = None  # shown but not uploaded yet (`show`, `_upload_pending`)
+        self.draws.before_full_image = lambda: self._upload_pending(force=True)
         self.inspection = InspectionCache()
         self._last_t = time.perf_counter()
         self._fps_t: list[float] = []
@@ -154,15 +156,30 @@ class ViewerApp:
         selection = session.selection if session is not None and len(session) == len(posed) else None
         frame = self.inspection.frame(self.state.inspect, posed, self.poses.shown_code, self.current_camera,
                                       selection)
+        self._pending = None
         if frame is None:
             uploaded = highlight(posed, session)
-            self.renderer.set_gaussians(uploaded)
-            self.renderer.clear_lines()
+            if len(uploaded) == self.renderer.count > 0:
+                # uploaded when an image of the full cloud starts (`before_full_image`): poses arriving faster than
+                # images (a stream, playback; live images from the merged cloud) cost no upload each
+                self._pending = uploaded
+            else:
+                self.renderer.set_gaussians(uploaded)
+                self.renderer.clear_lines()
         else:
             uploaded = frame.posed = highlight(frame.posed, session)
             self.renderer.show(frame)
         self.content_version += 1
         self.lod.submit(self.content_version, uploaded)
+
+    def _upload_pending(self, force: bool = False) -> None:
+        """Upload the newest shown cloud to the full cloud's renderer unless one of its images is in progress (or
+        now, with `force`): poses that arrive faster than images are drawn (a Live Link stream, playback) cost one
+        upload per image of the full cloud, not one per pose."""
+        if self._pending is not None and (force or not self.draws.drawing_full):
+            pending, self._pending = self._pending, None
+            self.renderer.set_gaussians(pending)
+            self.renderer.clear_lines()
 
     def reupload(self) -> None:
         """Upload the cloud on screen again (after a selection, hide or preview change)."""
@@ -221,6 +238,7 @@ class ViewerApp:
 
     def pick(self, x: float, y: float) -> int | None:
         """Pick the Gaussian at view pixel (x, y) (top-left origin) for the inspector."""
+        self._upload_pending(force=True)
         idx = self.renderer.pick(self.current_camera(), x, y)
         self.state.inspect.picked = idx
         self.inspection.due = True
@@ -244,9 +262,10 @@ class ViewerApp:
         return dragging or imgui.is_any_item_active() or playing or self.edits.kf_playing
 
     def _interacting(self) -> bool:
-        """The view is changing now: a drag or slider, playback, or a pose that will be replaced (a preview
-        or the canonical cloud before the first pose). Draws at the live scale meanwhile."""
-        return self._input_active() or self.poses.preview or self.poses.canonical
+        """The view is changing now: a drag or slider, playback, a Live Link stream (packets within the last
+        half second: each one replaces the pose), or a pose that will be replaced (a preview or the canonical cloud
+        before the first pose). Draws at the live scale meanwhile."""
+        return self._input_active() or self.live.busy() or self.poses.preview or self.poses.canonical
 
     def _draw_splats(self) -> None:
         cam = self.current_camera()
@@ -256,6 +275,8 @@ class ViewerApp:
             self.state.report(self.lod.error)
             self.lod.error, self.state.merged_live = None, False
         interacting = self._interacting()
+        if not interacting:
+            self._upload_pending()
         if self.draws.frame(cam, self.state.mode, self.content_version, interacting, exact_content=self.poses.exact):
             t = self.draws.shown_renderer.last_timings
             info.timings.update({k: t[k] for k in ("sort", "upload", "preprocess", "draw") if k in t})

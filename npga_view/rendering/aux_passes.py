@@ -43,6 +43,13 @@ class _LatentJob:
     draw_ms: float = 0.0
 
 
+def next_slice(count: int, ms: float, budget_ms: float) -> int:
+    """Size of the next slice of the sliced latent draw, from the `ms` a slice of `count` took: scaled toward the
+    budget (at most 4x up or down), 1024 to 2**24. (The colour pass sizes slices by `SliceCost`.)"""
+    grow = min(4.0, max(0.25, max(budget_ms, 1.0) / max(ms, 1e-3)))
+    return int(min(1 << 24, max(1024, count * grow)))
+
+
 class AuxiliaryPasses:
     """Latent, id and coverage passes; see the module docstring."""
 
@@ -67,8 +74,6 @@ class AuxiliaryPasses:
 
         @staticmethod
         def _load_shader(name: str, defines: Mapping[str, object] | None = None) -> str: ...
-        @staticmethod
-        def _next_slice(count: int, ms: float, budget_ms: float) -> int: ...
         def _activate(self) -> None: ...
         def _prepare(self, camera: Camera, flip_y: bool) -> None: ...
         def _begin_pass(self, fbo: moderngl.Framebuffer, viewport: tuple[int, int, int, int]) -> None: ...
@@ -169,7 +174,7 @@ class AuxiliaryPasses:
                 vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
                 if not math.isinf(budget_ms):  # a software GL renders lazily: time the slice itself
                     self.ctx.finish()
-                    job.slice = self._next_slice(count, (time.perf_counter() - t0) * 1e3, budget_ms)
+                    job.slice = next_slice(count, (time.perf_counter() - t0) * 1e3, budget_ms)
                 job.draw_ms += (time.perf_counter() - t0) * 1e3
                 job.next += count
                 job.slices += 1

@@ -68,6 +68,7 @@ from npga_core.model.gaussians import PosedGaussians, sh_degree_from_count
 from npga_view.rendering.aux_passes import AuxiliaryPasses
 from npga_view.rendering.drawcost import PathCosts
 from npga_view.rendering.lines import Lines
+from npga_view.rendering.slice_cost import SliceCost, footprints
 from npga_view.rendering.sorting import sort_back_to_front, view_depths
 
 #: The GLSL sources: the repository's shaders/, installed as the package data `npga_view.shaders`.
@@ -155,7 +156,8 @@ class SplatRenderer(AuxiliaryPasses):
         self._job: DrawJob | None = None
         self._job_camera: Camera | None = None
         self._job_framebuffer: moderngl.Framebuffer | None = None
-        self._slice = 8192  # sorted positions per slice, adapted so that a slice takes about the budget
+        self._slices = SliceCost()  # sorted positions per slice, from their predicted cost (slice_cost.py)
+        self._radius: np.ndarray | None = None  # each Gaussian's largest scale (the footprint of its splat)
         self._id_prog = self._program("splat.vert", "splat_id.frag")
         self._id_vao = ctx.vertex_array(self._id_prog, [])
         self._id_target: tuple[moderngl.Texture, moderngl.Framebuffer] | None = None
@@ -199,13 +201,6 @@ class SplatRenderer(AuxiliaryPasses):
     def _bind_latent(self, prog: moderngl.Program) -> None:
         """Make the latent features readable by the latent program `prog`."""
         self._buffers["latent"].bind_to_storage_buffer(4)
-
-    @staticmethod
-    def _next_slice(count: int, ms: float, budget_ms: float) -> int:
-        """Size of the next slice of a sliced draw (colour or latent), from the `ms` a slice of `count` took:
-        scaled toward the budget (at most 4x up or down), 1024 to 2**24."""
-        grow = min(4.0, max(0.25, max(budget_ms, 1.0) / max(ms, 1e-3)))
-        return int(min(1 << 24, max(1024, count * grow)))
 
     def _activate(self) -> None:
         """Make this renderer's context current: with several contexts in one process (a window and a
@@ -334,14 +329,14 @@ class SplatRenderer(AuxiliaryPasses):
             self._buffer("latent", latent)
         else:
             self._latent_dim = 0
-        self._uploaded(means, n, t0)
+        self._uploaded(means, n, t0, posed.scales)
 
-    def _uploaded(self, means: np.ndarray, n: int, t0: float) -> None:
+    def _uploaded(self, means: np.ndarray, n: int, t0: float, scales: np.ndarray) -> None:
         """Bookkeeping after `set_gaussians` (both paths): a cloud of another size drops an unfinished image
         (the buffers it draws from may be reallocated); the next draw runs the pre-pass again."""
         if n != self._count:
             self._job = None
-        self._means = means
+        self._means, self._radius = means, np.asarray(scales, np.float32).reshape(n, 3).max(axis=1)
         self._count = n
         self._prepared = None
         self.attribute_uploads += 1
@@ -370,6 +365,7 @@ class SplatRenderer(AuxiliaryPasses):
         assert means is not None
         z = view_depths(means, camera.world_to_camera)
         order = sort_back_to_front(z, NEAR, exact=self.exact_sort)
+        self._plan_slices(z, order, camera)
         t1 = time.perf_counter()
         self._buffers["order"].write(order)
         self._visible = int(order.shape[0])
@@ -397,6 +393,12 @@ class SplatRenderer(AuxiliaryPasses):
         t3 = time.perf_counter()
         self.last_timings.update(sort=(t1 - t0) * 1e3, upload=upload_ms + (t2 - t1) * 1e3, preprocess=(t3 - t2) * 1e3)
         self._prepared = key
+
+    def _plan_slices(self, z: np.ndarray, drawn: np.ndarray, camera: Camera) -> None:
+        """Each drawn splat's estimated footprint, in draw order, for sizing the slices (`SliceCost`)."""
+        r = self._radius
+        self._slices.begin(None if r is None else footprints(z[drawn], r[drawn], camera.fx, camera.fy,
+                                                             camera.width, camera.height))
 
     def _begin_pass(self, fbo: moderngl.Framebuffer, viewport: tuple[int, int, int, int]) -> None:
         fbo.use()
@@ -474,21 +476,17 @@ class SplatRenderer(AuxiliaryPasses):
             remaining = budget_ms - (time.perf_counter() - t_start) * 1e3
             if last_ms and remaining <= 0:
                 break
-            if math.isinf(budget_ms):
-                count = job.total - job.next
-            else:  # the slice size follows the measured time of the last slice (a fixed cost per slice included)
-                count = self._slice if not last_ms else int(self._slice * remaining / max(budget_ms, 1e-3))
-                count = count if budget_ms > 0 else 1024
-                count = min(job.total - job.next, max(1024, count))
+            budgeted = not math.isinf(budget_ms)  # then the slice is what its splats are predicted to fit
+            count = self._slices.count(job.next, job.total, remaining) if budgeted else job.total - job.next
             t0 = time.perf_counter()
             self._draw_slice(job, camera, fbo, job.next, count)
-            if self.sync_timings or not math.isinf(budget_ms):
+            if self.sync_timings or budgeted:
                 self.ctx.finish()
             else:
                 job.synced = False
             ms = last_ms = (time.perf_counter() - t0) * 1e3
-            if not math.isinf(budget_ms) and count >= 1024:
-                self._slice = self._next_slice(count, ms, budget_ms)
+            if budgeted:
+                self._slices.record(job.next, count, ms)
             job.next += count
             job.slices += 1
             job.draw_ms += ms

@@ -302,7 +302,7 @@ class SplatRenderer41(SplatRenderer):
             self._upload("latent", padded)
         else:
             self._latent_dim = 0
-        self._uploaded(means, n, t0)
+        self._uploaded(means, n, t0, posed.scales)
 
     def _prepare(self, camera: Camera, flip_y: bool) -> None:
         """Sort and run the CPU pre-pass for `camera` (skipped when camera and data are unchanged)."""
@@ -318,6 +318,7 @@ class SplatRenderer41(SplatRenderer):
         t1 = time.perf_counter()
         splats, self._kept, self._oversize = preprocess(columns, order, camera, flip_y,
                                                         self.max_point)
+        self._plan_slices(z, self._kept, camera)
         t2 = time.perf_counter()
         if len(splats):
             self._upload("splats", splats)

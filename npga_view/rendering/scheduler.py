@@ -36,6 +36,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 from dataclasses import dataclass
 
 from npga_core.camera.cameras import Camera
@@ -46,6 +47,7 @@ from npga_view.rendering.renderer import SplatRenderer, camera_key
 SMOOTHING = 0.2  # weight of the newest figure in the smoothed UI and overshoot times
 SCALE_STEP = (0.6, 1.6)  # the live scale changes by at most these factors per image
 FIRST_LIVE_SCALE = 0.5  # the live scales before any image was measured
+LIVE_FRAMES = 5  # a live image is sized to take about this many UI frames (about 6 images/s at 30 UI fps)
 
 
 def scaled_camera(camera: Camera, scale: float) -> Camera:
@@ -85,6 +87,8 @@ class DrawScheduler:
         self.target_fps = 31.5
         self._lod_wait: float | None = None  # since when the view has waited for a merge (None: not waiting)
         self.budget_ms = budget_ms
+        self.live_budget_ms = budget_ms  # what the last live frames were given (`frame_budget`)
+        self.before_full_image: Callable[[], None] | None = None  # called before an image of the full cloud starts
         self.interactive_ms = interactive_ms
         self.min_scale = min_scale
         self.settle_s = settle_s
@@ -151,6 +155,11 @@ class DrawScheduler:
         shown = self._shown
         return (self._job is None and shown is not None and shown.target == self._target
                 and (shown.scale >= 1.0 or self._live))
+
+    @property
+    def drawing_full(self) -> bool:
+        """An image of the full cloud (not the merged one) is being drawn."""
+        return self._job is not None and self._job.renderer is self.renderer
 
     @property
     def progress(self) -> float:
@@ -273,20 +282,22 @@ class DrawScheduler:
         return True
 
     def frame_budget(self, live: bool, merged: bool = False) -> float:
-        """Milliseconds of drawing per UI frame: `budget_ms` while the view changes, and for images of the merged
-        cloud (cheap enough) only what keeps the UI at `target_fps` beside the UI's own time and the usual
-        overshoot (the last slice, GL work queued by the window), unless that leaves
-        less than a third of the budget (the UI cannot reach that rate anyway: then the whole budget); while
+        """Milliseconds of drawing per UI frame: while the view changes, what keeps the UI at `target_fps` beside
+        the UI's own time and the usual overshoot (the last slice, GL work queued by the window), at most
+        `budget_ms`, unless that leaves less than a quarter of it (the UI cannot reach that rate anyway: then the
+        whole budget); live images adapt their scale to what they are given (`_adapt`); while
         nothing changes, a refinement may take as long as the rest of the UI frame (so that it gets at least half
         of the machine), never less than the budget and at most 4 times it."""
         if not live:
             return max(self.budget_ms, min(self.ui_ms, 4 * self.budget_ms))
         left = 1e3 / self.target_fps - self.ui_ms - self.over_ms
-        if merged and left >= self.budget_ms / 3:  # (when the UI alone is too slow for it, the whole budget)
-            return min(self.budget_ms, left)
-        return self.budget_ms
+        # (when the UI alone is too slow for that rate, the whole budget: images/s then matter more than UI fps)
+        self.live_budget_ms = min(self.budget_ms, left) if left >= self.budget_ms / 4 else self.budget_ms
+        return self.live_budget_ms
 
     def _start(self, camera: Camera, mode: str, image: _Image, now: float) -> None:
+        if image.renderer is self.renderer and self.before_full_image is not None:
+            self.before_full_image()  # e.g. the newest pose, held back while the last image was drawn
         image.renderer.begin_draw(scaled_camera(camera, image.scale), mode)
         self._job = image
         self._job_t0 = time.perf_counter()  # (wall time; `now` may be a test's clock)
@@ -317,7 +328,9 @@ class DrawScheduler:
         if image_ms <= 0:
             return
         full = job.renderer is self.renderer
-        factor = math.sqrt((self.interactive_ms if full else self.lod_interactive_ms) / image_ms)
+        # an image in about LIVE_FRAMES UI frames at what they give to drawing, at most the interactive cost
+        aim = min(self.interactive_ms if full else self.lod_interactive_ms, LIVE_FRAMES * self.live_budget_ms)
+        factor = math.sqrt(aim / image_ms)
         lo, hi = SCALE_STEP
         new = round(min(1.0, max(self.min_scale, job.scale * min(hi, max(lo, factor)))), 3)
         if full:
