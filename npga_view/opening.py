@@ -13,7 +13,7 @@ from typing import TYPE_CHECKING, Protocol
 import numpy as np
 
 from npga_core.errors import AvatarFileError, shown
-from npga_core.files.loading import load_avatar, load_sequence
+from npga_core.files.loading import load_avatar, load_sequence_for
 from npga_core.files.sequences import ExpressionSequence
 from npga_core.model.avatar import Avatar
 from npga_core.model.gaussians import PosedGaussians
@@ -123,13 +123,15 @@ def start_engine(app: OpeningHost, path: str) -> None:
 def open_sequence(app: OpeningHost, path: str) -> bool:
     """Load a sequence; refused (with both dimensions) if it does not fit the avatar."""
     try:
-        seq = load_sequence(path, basis=None if app.avatar is None else app.avatar.blendshapes)
         if app.avatar is None or app.avatar.code_dim == 0:
             raise AvatarFileError(path, "open an animatable avatar first (this one has no dynamics)")
+        seq = load_sequence_for(app.avatar, path)
         seq.check_dim(app.avatar.code_dim, path)
     except AvatarFileError as e:
         app.state.report(str(e))
         return False
+    for note in seq.notes:  # unmatched shapes, frames not recorded: once, as one line each
+        app.state.report(note)
     app.sequence = seq
     app.poses.sequence_opened(len(seq), seq.fps)
     app.state.sequence_path = str(Path(path).resolve())

@@ -2,18 +2,22 @@
 
 - Live Link Face CSV (Epic's iPhone app): a header ``Timecode,BlendShapeCount,<52 shapes>,HeadYaw,...,
   RightEyeRoll`` (PascalCase; the app's column order is not its UDP packet order, so columns are read by
-  name) and one row per frame; ``Timecode`` is ``HH:MM:SS:FF.sss`` (frame FF at the take's rate, .sss a
-  fraction of a frame). The rate is the smallest common rate above every FF seen (`timecode_rate`). Head
+  name) and one row per frame; ``Timecode`` is ``HH:MM:SS:FF.sss`` (frame FF at the timecode's rate, .sss a
+  fraction of a frame). The timecode's rate is the smallest common rate above every FF seen (`timecode_rate`);
+  the take's own is its median row spacing snapped to whole timecode frames (`recorded_rate`: 30 on a 60 count). Head
   angles (radians) give the head pose; eye angles are kept; angle columns all zero mean "not recorded".
 - JSON: LAM Audio2Expression's ``{"names", "metadata": {"fps"}, "frames": [{"weights", "time"}]}``;
+  NVIDIA Audio2Face's blendshape export ``{"exportFps", "numPoses", "numFrames", "facsNames", "weightMat"}``
+  (one row of ``numPoses`` weights per frame at ``exportFps``); ``{"names": [...], "values": [[...]]}``;
   MediaPipe face-landmarker category lists (per frame ``[{"categoryName"|"category_name", "score"}]``,
-  optionally under ``categories``/``faceBlendshapes``, with ``timestampMs``/``timestamp_ms``), as a list or
-  under ``frames``; and a plain ``{name: [values], "fps": rate}``.
+  optionally under ``categories``/``faceBlendshapes``, with ``timestampMs``/``timestamp_ms``), as a list, under
+  ``frames``, or one FaceLandmarkerResult alone; one object per frame ``[{"time": t, "blendshapes": {name:
+  value}}]``; and a plain ``{name: [values], "fps": rate}``.
 
 Frames are timed by their timecodes: a take is resampled (linear) to a uniform grid at its rate from its
 first frame, so dropped frames do not speed the take up. Through a `BlendshapeBasis` it becomes an
-`ExpressionSequence` (names matched by `blendshape_names`; shapes the avatar lacks are reported once, as a
-warning naming the file).
+`ExpressionSequence` (names matched by `blendshape_names`; shapes the avatar lacks and frames not recorded are
+one-line notes of the sequence, naming the file).
 """
 
 from __future__ import annotations
@@ -28,7 +32,7 @@ from typing import Any
 
 import numpy as np
 
-from npga_core.errors import AvatarFileError
+from npga_core.errors import AvatarFileError, shown
 from npga_core.files.atomic import atomic_write
 from npga_core.files.blendshape_names import ANGLE_NAMES, match_names
 from npga_core.files.sequences import ExpressionSequence
@@ -106,7 +110,18 @@ def timecode_seconds(codes: list[str], path: str | Path) -> tuple[np.ndarray, fl
         raise AvatarFileError(path, str(e)) from None
     secs = np.where(secs < secs[0] - 43200, secs + 86400, secs)  # a take recorded across midnight
     t = (secs - secs[0]) + (frames - frames[0]) / rate
-    return t, rate
+    return t, recorded_rate(t, rate)
+
+
+def recorded_rate(t: np.ndarray, base: float) -> float:
+    """The rate rows were recorded at on a timecode counting `base` frames a second: the median row spacing
+    snapped to a whole number of timecode frames (Live Link Face writes 30 Hz takes on a 60-count timecode:
+    its frame field steps by 2, and the take stays 30 fps, one frame per row)."""
+    if len(t) < 3:
+        return base
+    k = float(np.median(np.diff(t))) * base
+    step = round(k)
+    return base / step if step >= 1 and abs(k - step) < 0.25 else base
 
 
 def format_timecode(t: float, rate: float) -> str:
@@ -271,49 +286,112 @@ def _category_frame(frame: Any, path: Path, i: int) -> tuple[dict[str, float], f
     return out, stamp
 
 
-def _json_take(data: Any, path: Path) -> tuple[list[str], np.ndarray, np.ndarray | None, float]:
-    """(names, weights (T, B), times or None, fps) of any of the JSON layouts."""
-    fps = JSON_FPS
+_Layout = tuple[list[str], np.ndarray, np.ndarray | None, float]
+
+
+def _json_fps(data: Any, path: Path) -> float:
+    """The frame rate a JSON take states (LAM's metadata.fps, Audio2Face's exportFps, a plain fps), else 30."""
     if isinstance(data, dict):
         meta = data.get("metadata")
         if isinstance(meta, dict) and "fps" in meta:
-            fps = json_number(meta["fps"], path, "metadata.fps", 1e-3, 1000)
-        elif "fps" in data:
-            fps = json_number(data["fps"], path, "fps", 1e-3, 1000)
-    if isinstance(data, dict) and "names" in data and "frames" in data:  # LAM Audio2Expression
-        names, frames = data["names"], data["frames"]
-        if not isinstance(names, list) or not all(isinstance(n, str) for n in names) or not isinstance(frames, list):
-            raise AvatarFileError(path, "names must be a list of strings and frames a list")
-        rows, times = [], []
-        for i, f in enumerate(frames):
-            w = f.get("weights") if isinstance(f, dict) else None
-            if not isinstance(w, list) or len(w) != len(names):
-                raise AvatarFileError(path, f"frame {i} must have {len(names)} weights")
-            rows.append([_number(v, path, f"frame {i} weight") for v in w])
-            if isinstance(f, dict) and "time" in f:
-                times.append(_number(f["time"], path, f"frame {i} time"))
-        t = np.array(times, np.float64) if rows and len(times) == len(rows) else None
-        return names, np.array(rows, np.float64).reshape(len(rows), len(names)), t, fps
+            return json_number(meta["fps"], path, "metadata.fps", 1e-3, 1000)
+        for key in ("exportFps", "fps"):
+            if key in data:
+                return json_number(data[key], path, key, 1e-3, 1000)
+    return JSON_FPS
+
+
+def _names(v: Any, path: Path, key: str) -> list[str]:
+    if not isinstance(v, list) or not all(isinstance(n, str) and 0 < len(n) <= 128 for n in v):
+        raise AvatarFileError(path, f"{key} must be a list of blendshape names")
+    return list(v)
+
+
+def _rows(rows: Any, width: int, path: Path, key: str) -> np.ndarray:
+    """(T, width) numbers of a list of rows of `width` numbers."""
+    if not isinstance(rows, list):
+        raise AvatarFileError(path, f"{key} must be a list of rows")
+    out = []
+    for i, r in enumerate(rows):
+        if not isinstance(r, list) or len(r) != width:
+            raise AvatarFileError(path, f"{key} row {i} must have {width} values")
+        out.append([_number(v, path, f"{key} row {i} value") for v in r])
+    return np.array(out, np.float64).reshape(len(out), width)
+
+
+def _lam_layout(data: dict, path: Path, fps: float) -> _Layout:
+    """LAM Audio2Expression: ``{"names", "metadata": {"fps"}, "frames": [{"weights", "time"}]}``."""
+    names, frames = _names(data["names"], path, "names"), data["frames"]
+    if not isinstance(frames, list):
+        raise AvatarFileError(path, "frames must be a list")
+    w = _rows([f.get("weights") if isinstance(f, dict) else None for f in frames], len(names), path, "weights")
+    times = [_number(f["time"], path, f"frame {i} time") for i, f in enumerate(frames) if "time" in f]
+    return names, w, np.array(times, np.float64) if frames and len(times) == len(frames) else None, fps
+
+
+def _keyed_frames(frames: list, path: Path, fps: float) -> _Layout:
+    """``[{"time": t, "blendshapes": {name: value}}]``: one object per frame, weights by name."""
+    names = list(frames[0]["blendshapes"]) if isinstance(frames[0].get("blendshapes"), dict) else []
+    names = _names(names, path, "blendshapes")
+    rows, times = [], []
+    for i, f in enumerate(frames):
+        b = f.get("blendshapes") if isinstance(f, dict) else None
+        if not isinstance(b, dict) or set(b) != set(names):
+            raise AvatarFileError(path, f"frame {i} must name the same {len(names)} blendshapes as frame 0")
+        rows.append([_number(b[n], path, f"frame {i} {n}") for n in names])
+        if "time" in f:
+            times.append(_number(f["time"], path, f"frame {i} time"))
+    t = np.array(times, np.float64) if len(times) == len(frames) else None
+    return names, np.array(rows, np.float64).reshape(len(rows), len(names)), t, fps
+
+
+def _category_frames(frames: list, path: Path, fps: float) -> _Layout:
+    """MediaPipe face-landmarker results: per frame a list of categories (or a result object holding them)."""
+    parsed = [_category_frame(f, path, i) for i, f in enumerate(frames)]
+    names = list(dict.fromkeys(n for d, _ in parsed for n in d))
+    if parsed and any(set(d) != set(names) for d, _ in parsed):
+        raise AvatarFileError(path, "frames name different blendshape categories")
+    w = np.array([[d[n] for n in names] for d, _ in parsed], np.float64).reshape(len(parsed), len(names))
+    stamps = [st for _, st in parsed]
+    t = np.array(stamps, np.float64) if parsed and all(st is not None for st in stamps) else None
+    return names, w, t, fps
+
+
+def _series(data: dict, path: Path, fps: float) -> _Layout:
+    """A plain ``{name: [values], "fps": rate}``."""
+    series = {k: v for k, v in data.items() if k not in ("fps", "metadata")}
+    if not series or not all(isinstance(v, list) for v in series.values()):
+        raise AvatarFileError(path, "is no ARKit take (expected LAM's names/frames, Audio2Face's facsNames/weightMat, "
+                              "names/values, MediaPipe category lists, [{time, blendshapes}] or {name: [values]})")
+    lengths = {len(v) for v in series.values()}
+    if len(lengths) != 1:
+        raise AvatarFileError(path, f"blendshape series have different lengths {sorted(lengths)[:4]}")
+    names = list(series)
+    w = np.array([[_number(x, path, f"{n} value") for x in series[n]] for n in names], np.float64).T
+    return names, w.reshape(lengths.pop(), len(names)), None, fps
+
+
+def _json_take(data: Any, path: Path) -> _Layout:
+    """(names, weights (T, B), times or None, fps) of any of the JSON layouts (see the module docstring)."""
+    fps = _json_fps(data, path)
+    if isinstance(data, dict):
+        if "names" in data and "frames" in data:  # LAM Audio2Expression
+            return _lam_layout(data, path, fps)
+        if "facsNames" in data and "weightMat" in data:  # NVIDIA Audio2Face's blendshape export
+            names = _names(data["facsNames"], path, "facsNames")
+            return names, _rows(data["weightMat"], len(names), path, "weightMat"), None, fps
+        if "names" in data and "values" in data:  # names and a (T, B) table
+            names = _names(data["names"], path, "names")
+            return names, _rows(data["values"], len(names), path, "values"), None, fps
+        if "faceBlendshapes" in data or "face_blendshapes" in data:  # one MediaPipe FaceLandmarkerResult
+            return _category_frames([data], path, fps)
     frames = data.get("frames") if isinstance(data, dict) and isinstance(data.get("frames"), list) else data
-    if isinstance(frames, list):  # MediaPipe category lists
-        parsed = [_category_frame(f, path, i) for i, f in enumerate(frames)]
-        names = list(dict.fromkeys(n for d, _ in parsed for n in d))
-        if parsed and any(set(d) != set(names) for d, _ in parsed):
-            raise AvatarFileError(path, "frames name different blendshape categories")
-        w = np.array([[d[n] for n in names] for d, _ in parsed], np.float64).reshape(len(parsed), len(names))
-        stamps = [s for _, s in parsed]
-        t = np.array(stamps, np.float64) if parsed and all(s is not None for s in stamps) else None
-        return names, w, t, fps
-    if isinstance(data, dict):  # plain {name: [values]}
-        series = {k: v for k, v in data.items() if k not in ("fps", "metadata")}
-        if not series or not all(isinstance(v, list) for v in series.values()):
-            raise AvatarFileError(path, "is no ARKit take (expected names/frames, category lists or {name: [values]})")
-        lengths = {len(v) for v in series.values()}
-        if len(lengths) != 1:
-            raise AvatarFileError(path, f"blendshape series have different lengths {sorted(lengths)[:4]}")
-        names = list(series)
-        w = np.array([[_number(x, path, f"{n} value") for x in series[n]] for n in names], np.float64).T
-        return names, w.reshape(lengths.pop(), len(names)), None, fps
+    if isinstance(frames, list) and frames and isinstance(frames[0], dict) and "blendshapes" in frames[0]:
+        return _keyed_frames(frames, path, fps)
+    if isinstance(frames, list):
+        return _category_frames(frames, path, fps)
+    if isinstance(data, dict):
+        return _series(data, path, fps)
     raise AvatarFileError(path, f"is no ARKit take (top level is {type(data).__name__})")
 
 
@@ -365,23 +443,37 @@ def head_pose(angles: np.ndarray) -> np.ndarray:
     return pose
 
 
-def take_sequence(take: Take, basis: BlendshapeBasis, path: str | Path) -> tuple[ExpressionSequence, str]:
-    """The take as codes through `basis` (resampled by its times), and the one-line report of unmatched names."""
+def take_sequence(take: Take, basis: BlendshapeBasis, path: str | Path,
+                  fps: float | None = None) -> tuple[ExpressionSequence, str]:
+    """The take as codes through `basis` at its own rate (one frame per row where none was dropped; gaps
+    interpolated) or resampled to `fps`, and the one-line report of unmatched names; the sequence's `notes`
+    say what was matched, missing or interpolated."""
     try:
         match = match_names(take.names, basis.names)
     except ValueError as e:
         raise AvatarFileError(path, str(e)) from None
-    n = int(math.floor((take.times[-1] - take.times[0]) * take.fps + 0.5)) + 1  # the frames `resample` fills
+    rate = take.fps if fps is None else float(fps)
+    if not (math.isfinite(rate) and 0.01 <= rate <= 1000):
+        raise AvatarFileError(path, f"--fps {rate:g} is outside 0.01..1000")
+    n = int(math.floor((take.times[-1] - take.times[0]) * rate + 0.5)) + 1  # the frames `resample` fills
     if n > MAX_FRAMES or n * max(len(take.names), 1) > MAX_RESAMPLED_VALUES:
-        raise AvatarFileError(path, f"its times span {n} frames at {take.fps:g} fps ({len(take.times)} rows "
+        raise AvatarFileError(path, f"its times span {n} frames at {rate:g} fps ({len(take.times)} rows "
                               f"recorded), more than the {MAX_FRAMES} frames or {MAX_RESAMPLED_VALUES} values "
                               "a take may fill")
-    w = resample(take.times, match.apply(take.weights), take.fps)
-    seq = ExpressionSequence(basis.codes(w), take.fps, take.name or Path(path).stem)
+    w = resample(take.times, match.apply(take.weights), rate)
+    seq = ExpressionSequence(basis.codes(w), rate, take.name or Path(path).stem)
     if take.head is not None:
-        seq.pose = head_pose(resample(take.times, take.head, take.fps))
+        seq.pose = head_pose(resample(take.times, take.head, rate))
         seq.pose_source = HEAD_POSE
-    return seq, match.report()
+    report = match.report()
+    if report:
+        seq.notes.append(f"{shown(path)}: {report}")
+    if fps is None and n > len(take.times):
+        seq.notes.append(f"{shown(path)}: {n - len(take.times)} of {n} frames at {rate:g} fps were not recorded "
+                         "(interpolated from their neighbours)")
+    elif fps is not None and abs(rate - take.fps) > 1e-9:
+        seq.notes.append(f"{shown(path)}: resampled from {take.fps:g} to {rate:g} fps")
+    return seq, report
 
 
 def default_basis() -> BlendshapeBasis:
@@ -391,12 +483,8 @@ def default_basis() -> BlendshapeBasis:
     return bundled_demo_basis()
 
 
-def read_take_sequence(path: str | Path, basis: BlendshapeBasis | None = None) -> ExpressionSequence:
-    """`read_take` then `take_sequence` (the demo's basis when none is given); unmatched names are reported
-    once as a warning."""
-    import warnings
-
-    seq, report = take_sequence(read_take(path), basis or default_basis(), path)
-    if report:
-        warnings.warn(f"{path}: {report}", stacklevel=2)
-    return seq
+def read_take_sequence(path: str | Path, basis: BlendshapeBasis | None = None,
+                       fps: float | None = None) -> ExpressionSequence:
+    """`read_take` then `take_sequence` (the demo's basis when none is given); what did not match and what was
+    interpolated are one-line `notes` of the sequence (shown once by the CLI and the window)."""
+    return take_sequence(read_take(path), basis or default_basis(), path, fps)[0]

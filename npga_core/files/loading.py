@@ -59,7 +59,14 @@ def load_avatar(path: str | Path) -> Avatar:
     if head and MAGIC.startswith(head):  # whole signature, or a file cut inside it
         return read_avatar(p)
     if is_zip(head):
-        return read_lam_zip(p)
+        try:
+            return read_lam_zip(p)
+        except AvatarFileError as e:
+            if e.problem.startswith("not a readable zip archive"):  # the signature alone was a zip's
+                raise AvatarFileError(p, "not an .npga checkpoint, a PLY file or a LAM avatar zip ("
+                                      + e.problem.replace("not a readable zip archive", "an unreadable zip archive",
+                                                          1) + ")") from None
+            raise
     if head.startswith(b"ply"):
         return Avatar(read_ply(p), provenance={"source": str(p), "format": "3dgs-ply"}, source=str(p))
     if not head:
@@ -82,11 +89,22 @@ def load_sequence(path: str | Path, fps: float | None = None,
         elif codes.ndim == 3 and codes.shape[1] == 1:
             codes = codes[:, 0]
         seq = ExpressionSequence(codes, DEFAULT_FPS, path.stem)
-    elif path.suffix.lower() in TAKE_SUFFIXES:
-        seq = read_take_sequence(path, basis)
+    elif path.suffix.lower() in TAKE_SUFFIXES:  # resampled to --fps (not relabelled: timed by its timecodes)
+        return validate_sequence(read_take_sequence(path, basis, fps), path)
     else:
         regular_file(path, "a sequence file")
         seq = (tracker_of(npz_names(path)) or read_npz)(path)
     if fps is not None:
         seq.fps = float(fps)
     return validate_sequence(seq, path)
+
+
+def load_sequence_for(avatar: Avatar, path: str | Path, fps: float | None = None) -> ExpressionSequence:
+    """`load_sequence` for an open avatar: an ARKit take goes through the avatar's own blendshape basis, and an
+    avatar without one refuses a take in one line saying how to get one (no detour through the demo's map)."""
+    p = Path(path)
+    if not p.is_dir() and p.suffix.lower() in TAKE_SUFFIXES and avatar.blendshapes is None:
+        raise AvatarFileError(p, "is an ARKit take, and the avatar has no blendshape basis to turn its weights into "
+                              "expression codes: fit one with `npga-view fit-blendshapes --take TAKE --codes "
+                              "TRACKED --out basis.npz` (README, 'Driving the avatar from face captures')")
+    return load_sequence(p, fps, basis=avatar.blendshapes)

@@ -10,7 +10,7 @@ instead, read as x_world = s R x + t (docs/FORMAT.md section 12).
 from __future__ import annotations
 
 import io
-from dataclasses import InitVar, dataclass
+from dataclasses import InitVar, dataclass, field
 from pathlib import Path
 
 import numpy as np
@@ -44,6 +44,7 @@ class ExpressionSequence:
     frame_names: list[str] | None = None
     pose: np.ndarray | None = None  # (T, 4, 4) float64, canonical -> world
     pose_source: str = ""
+    notes: list[str] = field(default_factory=list)  # one-line notices of the reader (unmatched shapes, gaps)
 
     def __post_init__(self, rotation, translation, scale) -> None:
         if rotation is None and translation is None and scale is None:

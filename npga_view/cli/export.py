@@ -32,7 +32,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def expression_code(args: argparse.Namespace, avatar) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The code selected by --expr/--sequence/--frame (None: the avatar's mean code), the same rules as
     `npga-view render` for a single image, and the frame's head transform (4x4) with --head-pose."""
-    from npga_core.files.loading import load_sequence
+    from npga_core.files.loading import load_sequence_for
     from npga_core.posing.headpose import head_transforms
 
     if args.sequence is not None and args.expr is not None:
@@ -59,7 +59,9 @@ def expression_code(args: argparse.Namespace, avatar) -> tuple[np.ndarray | None
             if args.frame is not None:
                 raise ExportError("--frame needs --sequence or an --expr file of several codes")
             return named, None
-    seq = load_sequence(source, basis=avatar.blendshapes)
+    seq = load_sequence_for(avatar, source)
+    for note in seq.notes:
+        print(f"npga-view: note: {note}", file=sys.stderr)
     seq.check_dim(avatar.code_dim, source)
     frame = 0 if args.frame is None else args.frame
     if not 0 <= frame < len(seq):

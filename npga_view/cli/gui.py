@@ -16,9 +16,12 @@ from npga_view.actions import Bake, LoadRig
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("avatar", nargs="?", default="demo", metavar="AVATAR",
-                   help="a .npga, a 3DGS .ply or 'demo' (default: the bundled demo avatar)")
+                   help="a .npga, a 3DGS .ply, a LAM avatar .zip, a Gaussian-Head-Avatar folder or 'demo' (default: the "
+                        "bundled demo avatar)")
     p.add_argument("--sequence", metavar="SEQ",
-                   help="expression sequence (.npzseq, .npz, .npy or a MonoNPHM tracking folder)")
+                   help="expression sequence (.npzseq, .npz, .npy, a MonoNPHM/GHA tracking folder, a tracker's "
+                        ".npz) or an ARKit take (Live Link Face .csv; LAM, Audio2Face, MediaPipe .json) read through "
+                        "the avatar's blendshape basis")
     p.add_argument("--play", action="store_true", help="start playing the sequence")
     p.add_argument("--bake", action="store_true",
                    help="bake the sequence at start and play from the bake (progress in the Timeline panel)")

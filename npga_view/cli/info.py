@@ -119,7 +119,45 @@ def _rig_lines(rig, first: int) -> list[str]:
     return lines
 
 
+def take_summary(path: str) -> str:
+    """What `info` prints for an ARKit take: frames, rate, duration, gaps, channels, head pose."""
+    import numpy as np
+
+    from npga_core.files.arkit_takes import read_take
+    from npga_core.files.blendshape_names import ARKIT_52, canonical_arkit
+
+    take = read_take(path)
+    n = int(round((take.times[-1] - take.times[0]) * take.fps)) + 1
+    w = np.asarray(take.weights)
+    still = [nm for k, nm in enumerate(take.names) if float(np.abs(w[:, k]).max()) <= STILL]
+    arkit = {canonical_arkit(nm) for nm in take.names} - {None}
+    lines = [shown(path),
+             f"  ARKit take: {len(take.times):,} rows at {take.fps:g} fps, {take.times[-1] - take.times[0]:.2f} s"
+             + (f"; {n - len(take.times):,} of {n:,} frames not recorded (interpolated)" if n > len(take.times)
+                else "; no frame dropped"),
+             f"  channels: {len(take.names)} ({len(arkit)} of ARKit's 52"
+             + (f"; not ARKit: {', '.join(shown(x) for x in take.names if canonical_arkit(x) is None)[:200]}"
+                if len(arkit) < len(take.names) else "") + ")",
+             f"  never moving (<= {STILL:g}): {len(still)}"
+             + (f": {', '.join(shown(x) for x in still)}" if still else ""),
+             f"  absent: {', '.join(x for x in ARKIT_52 if x not in arkit) or 'none'}",
+             "  head pose: " + ("none recorded (the angle columns are absent or all zero)" if take.head is None else
+                                f"recorded (yaw/pitch/roll up to {float(np.abs(take.head).max()):.3g} rad)")]
+    return "\n".join(lines)
+
+
+#: A take's channel whose values stay within this is reported as never moving.
+STILL = 0.01
+
+
 def run(args: argparse.Namespace) -> int:
+    from pathlib import Path
+
+    from npga_core.files.arkit_takes import TAKE_SUFFIXES
+
+    if Path(args.path).suffix.lower() in TAKE_SUFFIXES and not Path(args.path).is_dir():
+        print(take_summary(args.path))
+        return 0
     t0 = time.perf_counter()
     avatar = load_avatar(args.path)
     dt = time.perf_counter() - t0

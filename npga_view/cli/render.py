@@ -78,7 +78,8 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="print the Gaussian counts (total, in the frustum, drawn, per part) as JSON on stdout")
     p.add_argument("--expr", help="expression code .npy, (D,) or (T, D) with --frame choosing the row; or a named "
                    "expression of the avatar ('jaw open'); or blendshape weights 'jawOpen=0.8,eyeBlinkLeft=1'")
-    p.add_argument("--sequence", type=Path, help="expression sequence (.npzseq/.npz/.npy or a tracking folder)")
+    p.add_argument("--sequence", type=Path, help="expression sequence (.npzseq/.npz/.npy or a tracking folder) or an "
+                   "ARKit take (.csv, .json) read through the avatar's blendshape basis")
     p.add_argument("--frame", type=int, default=None, help="frame of --sequence/--expr for a single image")
     p.add_argument("--head-pose", choices=("off", "relative", "absolute"), default="off",
                    help="move the head as the --sequence's tracked pose: relative to its first frame (for the "
@@ -88,7 +89,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--timeline", type=Path, help="keyframe timeline JSON (expression and camera keys) to render as "
                    "a video (.mp4)")
     p.add_argument("--verbose", action="store_true", help="print which renderer path and OpenGL version run")
-    p.add_argument("--fps", type=float, default=25.0, help="frame rate of a --timeline video (default 25)")
+    p.add_argument("--fps", type=float, default=None, help="frame rate of a --timeline video (default 25), or of a "
+                   "--sequence video: an ARKit take is resampled to it by its timecodes, other sequences play at it "
+                   "(default: the sequence's own)")
 
 
 def _mode(text: str) -> str:
@@ -159,7 +162,7 @@ def _camera(args, framing_points: np.ndarray) -> Camera:
 def _codes(args, avatar) -> tuple[np.ndarray | None, float, list[np.ndarray] | None]:
     """(T, D) codes to render (None: the mean code), the frame rate and, with --head-pose, each frame's head
     transform (4x4)."""
-    from npga_core.files.loading import load_sequence
+    from npga_core.files.loading import load_sequence_for
     from npga_core.posing.headpose import head_transforms
 
     source = args.sequence or args.expr
@@ -184,8 +187,10 @@ def _codes(args, avatar) -> tuple[np.ndarray | None, float, list[np.ndarray] | N
             if args.frame is not None:
                 raise RenderError("--frame needs --sequence or an --expr file of several codes")
             return named[None], 25.0, None
-    seq = load_sequence(source, basis=avatar.blendshapes)
+    seq = load_sequence_for(avatar, source, args.fps)
     seq.check_dim(avatar.code_dim, source)
+    for note in seq.notes:
+        print(f"npga-view: note: {note}", file=sys.stderr)
     frames: range | list[int]
     codes, frames = seq.codes, range(len(seq))
     if args.frame is not None:
@@ -200,18 +205,19 @@ def _timeline(args, avatar, camera: Camera) -> tuple[list, list[Camera], float]:
     """Per-frame codes (None: the mean code) and cameras of --timeline at --fps over its duration."""
     from npga_core.editing.keyframes import KeyframeTimeline
 
-    if not (np.isfinite(args.fps) and 0 < args.fps <= 1000):
-        raise RenderError(f"--fps {args.fps}: must be in (0, 1000]")
+    fps = 25.0 if args.fps is None else args.fps
+    if not (np.isfinite(fps) and 0 < fps <= 1000):
+        raise RenderError(f"--fps {fps}: must be in (0, 1000]")
     tl = KeyframeTimeline.load(args.timeline)
     if tl.expression and avatar.code_dim == 0:
         raise RenderError(f"{args.timeline}: the avatar is static (no dynamics), it takes no expression keys")
     tl.check_code_dim(avatar.code_dim, args.timeline)
     try:
-        times = tl.frame_times(args.fps)
+        times = tl.frame_times(fps)
     except ValueError as exc:
         raise RenderError(f"{args.timeline}: {exc}") from None
     cameras = [tl.camera_at(t, camera.width, camera.height) or camera for t in times]
-    return [tl.code_at(t) for t in times], cameras, float(args.fps)
+    return [tl.code_at(t) for t in times], cameras, float(fps)
 
 
 def to_display(image: np.ndarray, mode: str, alpha: np.ndarray | None = None) -> np.ndarray:
