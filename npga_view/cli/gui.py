@@ -16,8 +16,8 @@ from npga_view.actions import Bake, LoadRig
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("avatar", nargs="?", default="demo", metavar="AVATAR",
-                   help="a .npga, a 3DGS .ply, a LAM avatar .zip, a Gaussian-Head-Avatar folder or 'demo' (default: the "
-                        "bundled demo avatar)")
+                   help="a .npga, a 3DGS .ply, a LAM avatar .zip, a Gaussian-Head-Avatar folder or 'demo' "
+                        "(default: the bundled demo avatar)")
     p.add_argument("--sequence", metavar="SEQ",
                    help="expression sequence (.npzseq, .npz, .npy, a MonoNPHM/GHA tracking folder, a tracker's "
                         ".npz) or an ARKit take (Live Link Face .csv; LAM, Audio2Face, MediaPipe .json) read through "
