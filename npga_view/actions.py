@@ -79,6 +79,11 @@ class LoadRig(Action):
     path: str
 
 
+@dataclass(frozen=True)
+class LoadBasis(Action):
+    path: str  # a blendshape basis .npz (fit-blendshapes) for the open avatar: takes and Live Link go through it
+
+
 # -- camera ------------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class CameraPreset(Action):

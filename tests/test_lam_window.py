@@ -137,3 +137,38 @@ def test_hostile_zip_is_one_line_and_the_window_keeps_drawing(window):
     assert app.avatar is not None and len(app.avatar) == 800  # the open avatar stays
     for _ in range(5):
         app.step()
+
+
+def test_an_avatar_without_a_basis_gets_one_from_load_basis(window):
+    """A take handed to an avatar without a blendshape basis is one line saying how to get one; "Load basis"
+    (the LoadBasis action) gives it one, and the take then opens through it."""
+    from npga_core.files.basis_file import save_basis
+    from npga_core.files.checkpoint import save_avatar
+    from npga_core.model.blendshapes import BlendshapeBasis
+    from npga_core.model.synthetic import make_synthetic_avatar
+    from npga_view import actions as A
+
+    app, root = window
+    avatar = make_synthetic_avatar(400, code_dim=6, hidden=8, depth=2, n_components=3, seed=2)
+    path = root / "nobasis.npga"
+    save_avatar(avatar, path)
+    take = root / "take6.csv"
+    _take(take, 12, "jawOpen")
+    assert app.open_avatar(str(path))
+    app.state.errors = []
+    assert not app.open_sequence(str(take))
+    assert len(app.state.errors) == 1 and "no blendshape basis" in app.state.errors[0]
+    basis = root / "basis.npz"
+    rng = np.random.default_rng(0)
+    save_basis(BlendshapeBasis(ARKIT_52, rng.normal(size=(6, 52)), np.zeros(6), "test"), basis)
+    app.state.actions.append(A.LoadBasis(str(basis)))
+    app.step()
+    assert app.avatar is not None and app.avatar.blendshapes is not None
+    assert app.open_sequence(str(take)), app.state.errors
+    assert app.sequence is not None and app.sequence.codes.shape[1] == 6
+    wrong = root / "wrong.npz"
+    save_basis(BlendshapeBasis(ARKIT_52, np.ones((9, 52)), np.zeros(9), "test"), wrong)
+    app.state.errors = []
+    app.state.actions.append(A.LoadBasis(str(wrong)))
+    app.step()
+    assert len(app.state.errors) == 1 and "wrong.npz" in app.state.errors[0] and "9-D" in app.state.errors[0]

@@ -51,6 +51,8 @@ MAX_ANGLE = 1e3
 #: Common frame rates a Live Link Face timecode's frame field may count at.
 RATES = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 100.0, 120.0, 240.0)
 JSON_FPS = 30.0
+#: Most timecode frames between a take's rows that still count as its recording rate (`recorded_rate`).
+MAX_STEP = 8
 TAKE_SUFFIXES = (".csv", ".json")
 HEAD_POSE = "ARKit head angles (radians): x_world = Ry(yaw) Rx(pitch) Rz(roll) x"
 _TIMECODE = re.compile(r"^(\d{1,2}):(\d{2}):(\d{2})[:;](\d{1,3})(?:\.(\d{1,9}))?$")
@@ -121,7 +123,8 @@ def recorded_rate(t: np.ndarray, base: float) -> float:
         return base
     k = float(np.median(np.diff(t))) * base
     step = round(k)
-    return base / step if step >= 1 and abs(k - step) < 0.25 else base
+    # (up to 8 timecode frames a row: 30, 20, 15, ... on a 60 count; sparser rows are gaps, timed as they are)
+    return base / step if 1 <= step <= MAX_STEP and abs(k - step) < 0.25 else base
 
 
 def format_timecode(t: float, rate: float) -> str:
@@ -431,6 +434,17 @@ def resample(times: np.ndarray, values: np.ndarray, fps: float) -> np.ndarray:
         return np.asarray(values, np.float64)
     v = np.asarray(values, np.float64)
     return np.stack([np.interp(grid, times, v[:, k]) for k in range(v.shape[1])], axis=1).reshape(n, v.shape[1])
+
+
+def resampled(take: Take, cols: list[int], path: str | Path, fps: float | None = None) -> np.ndarray:
+    """Columns `cols` of a take's weights on its frame grid (at `fps` or its own rate), within the frame and value
+    bounds a sequence of it has (`take_sequence`)."""
+    rate = take.fps if fps is None else float(fps)
+    n = int(math.floor((take.times[-1] - take.times[0]) * rate + 0.5)) + 1
+    if n > MAX_FRAMES or n * max(len(cols), 1) > MAX_RESAMPLED_VALUES:
+        raise AvatarFileError(path, f"its times span {n} frames at {rate:g} fps ({len(take.times)} rows recorded), "
+                              f"more than the {MAX_FRAMES} frames or {MAX_RESAMPLED_VALUES} values a take may fill")
+    return resample(take.times, take.weights[:, cols], rate)
 
 
 def head_pose(angles: np.ndarray) -> np.ndarray:

@@ -24,6 +24,20 @@ def save_basis(basis: BlendshapeBasis, path: str | Path) -> None:
     atomic_write(Path(path), lambda fh: fh.write(buf.getvalue()))
 
 
+def attach_basis(avatar, path: str | Path) -> BlendshapeBasis:
+    """Read the basis at `path` and give it to `avatar` (replacing its own); AvatarFileError in one line when it
+    does not fit the avatar's expression code."""
+    from npga_core.files.blendshapes_field import fits
+
+    basis = read_basis(path)
+    try:
+        fits(basis.code_dim, avatar.code_dim, avatar.condition_dim)
+    except ValueError as e:
+        raise AvatarFileError(path, str(e)) from None
+    avatar.blendshapes = basis
+    return basis
+
+
 def read_basis(path: str | Path) -> BlendshapeBasis:
     """Read a basis `.npz`; AvatarFileError naming the file on anything wrong."""
     path = Path(path)

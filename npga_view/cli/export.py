@@ -20,6 +20,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, type=Path, help="the .ply file to write")
     p.add_argument("--expr", help="expression code .npy, (D,) or (T, D) with --frame choosing the row (default row "
                    "0); or a named expression of the avatar ('jaw open'); or weights 'jawOpen=0.8,eyeBlinkLeft=1'")
+    p.add_argument("--basis", type=Path, default=None,
+                   help="a blendshape basis .npz (npga-view fit-blendshapes) for the avatar: ARKit takes "
+                        "go through it instead of the avatar's own")
     p.add_argument("--sequence", type=Path, help="expression sequence (.npzseq/.npz/.npy or a tracking folder); "
                    "needs --frame")
     p.add_argument("--frame", type=int, default=None, help="frame of --sequence/--expr")
@@ -87,6 +90,10 @@ def run(args: argparse.Namespace) -> int:
 
         precision = check_precision(getattr(args, "precision", "fp32"))
         avatar = load_avatar(args.avatar)
+        if args.basis is not None:
+            from npga_core.files.basis_file import attach_basis
+
+            attach_basis(avatar, args.basis)
         code, transform = expression_code(args, avatar)
     except (ExportError, ValueError) as e:
         print(f"npga-view export: error: {' '.join(str(e).split())}", file=sys.stderr)

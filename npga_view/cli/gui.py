@@ -22,6 +22,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="expression sequence (.npzseq, .npz, .npy, a MonoNPHM/GHA tracking folder, a tracker's "
                         ".npz) or an ARKit take (Live Link Face .csv; LAM, Audio2Face, MediaPipe .json) read through "
                         "the avatar's blendshape basis")
+    p.add_argument("--basis", metavar="BASIS", default=None,
+                   help="a blendshape basis .npz (npga-view fit-blendshapes) for the avatar: ARKit takes "
+                        "go through it instead of the avatar's own")
     p.add_argument("--play", action="store_true", help="start playing the sequence")
     p.add_argument("--bake", action="store_true",
                    help="bake the sequence at start and play from the bake (progress in the Timeline panel)")
@@ -107,6 +110,13 @@ def _open_and_run(args: argparse.Namespace, w: int, h: int, holder: dict) -> int
     holder["app"] = app
     try:
         opened = app.open_avatar(args.avatar)
+        if args.basis and opened and app.avatar is not None:
+            from npga_core.files.basis_file import attach_basis
+
+            try:
+                attach_basis(app.avatar, args.basis)
+            except AvatarFileError as e:
+                app.state.report(str(e))
         if args.sequence and opened:
             app.open_sequence(args.sequence)
             app.state.timeline.playing = bool(args.play)
@@ -146,7 +156,11 @@ def check_files(args: argparse.Namespace) -> None:
     from npga_view.controllers.actions import ActionController, read_presets
     from npga_view.state import ViewerState, read_recent, recent_file
 
-    if args.sequence:
+    if args.basis:
+        from npga_core.files.basis_file import read_basis
+
+        read_basis(args.basis)
+    if args.sequence and not args.basis:  # (a take is read through the basis once the window has it)
         load_sequence(args.sequence)
     if args.rig:
         load_rig(args.rig)

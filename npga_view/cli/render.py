@@ -78,6 +78,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="print the Gaussian counts (total, in the frustum, drawn, per part) as JSON on stdout")
     p.add_argument("--expr", help="expression code .npy, (D,) or (T, D) with --frame choosing the row; or a named "
                    "expression of the avatar ('jaw open'); or blendshape weights 'jawOpen=0.8,eyeBlinkLeft=1'")
+    p.add_argument("--basis", type=Path, default=None,
+                   help="a blendshape basis .npz (npga-view fit-blendshapes) for the avatar: ARKit takes "
+                        "go through it instead of the avatar's own")
     p.add_argument("--sequence", type=Path, help="expression sequence (.npzseq/.npz/.npy or a tracking folder) or an "
                    "ARKit take (.csv, .json) read through the avatar's blendshape basis")
     p.add_argument("--frame", type=int, default=None, help="frame of --sequence/--expr for a single image")
@@ -513,6 +516,10 @@ def _render(args) -> int:
 
     check_precision(getattr(args, "precision", "fp32"))
     avatar = load_avatar(args.avatar)
+    if args.basis is not None:
+        from npga_core.files.basis_file import attach_basis
+
+        attach_basis(avatar, args.basis)
     codes: np.ndarray | list | None
     codes, fps, poses = _codes(args, avatar)
     camera = _camera(args, avatar.cloud.means)

@@ -65,6 +65,7 @@ class ActionController:
             A.SaveSession: lambda a: st.save_session(a.path or "session.json"),
             A.LoadSession: lambda a: self.load_session(a.path or "session.json"),
             A.LoadRig: self._load_rig,
+            A.LoadBasis: self._load_basis,
         }
 
     def _expression(self):
@@ -144,6 +145,17 @@ class ActionController:
     def _screenshot(self, a: A.Screenshot) -> None:
         stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")
         self.host.screenshot(a.path or f"npga-view-{stamp}.png")
+
+    def _load_basis(self, a: A.LoadBasis) -> None:
+        """Give the open avatar the basis at `a.path` (takes opened after it and the Live Link stream use it)."""
+        from npga_core.files.basis_file import attach_basis
+
+        avatar = self.host.avatar
+        if avatar is None or avatar.code_dim == 0:
+            self.host.state.report(f"{a.path}: open an animatable avatar before its blendshape basis")
+            return
+        basis = attach_basis(avatar, a.path)
+        self.host.state.report(f"{a.path}: blendshape basis of {len(basis.names)} shapes loaded for the avatar")
 
     def _load_rig(self, a: A.LoadRig) -> None:
         if not a.path:

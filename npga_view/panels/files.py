@@ -23,7 +23,7 @@ from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import ViewerState
 
-AVATAR_EXT = (".npga", ".ply")
+AVATAR_EXT = (".npga", ".ply", ".zip")
 SEQUENCE_EXT = (".npzseq", ".npz", ".npy")
 DIALOG_ENV = "NPGA_VIEW_DIALOGS"
 #: the programs portable_file_dialogs drives on Linux/BSD (portable-file-dialogs.h, settings::available)
@@ -164,6 +164,13 @@ class FilesPanel:
         if imgui.button("Open sequence"):
             state.actions.append(A.OpenSequence(self.path.strip()))
         remember(info, "open_sequence")
+        imgui.same_line()
+        if imgui.button("Load basis"):
+            state.actions.append(A.LoadBasis(self.path.strip()))
+        remember(info, "load_basis")
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("a blendshape basis .npz (npga-view fit-blendshapes) for the open avatar: ARKit takes "
+                              "and the Live Link stream then drive it")
         imgui.same_line()
         if imgui.button("Demo"):
             state.actions.append(A.OpenAvatar("demo"))
