@@ -70,6 +70,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--window-precision", nargs="*", choices=("auto", "fp32", "bf16"), metavar="P",
                    help="--window: the default drawing once per precision of the exact dynamics (e.g. fp32 bf16)")
     p.add_argument("--window-seconds", type=float, default=6.0, help="length of each window run (default 6)")
+    p.add_argument("--beside-load", type=int, default=0, metavar="N",
+                   help="--window: measure idle and again beside N busy processes the bench starts and ends itself "
+                        "(a training run, a browser), one table")
 
 
 # -- small measuring helpers -------------------------------------------------------------------------------
@@ -515,7 +518,7 @@ def run(args: argparse.Namespace) -> int:
         sizes = [n for n in args.gaussians if n != 20000] if args.gaussians == list(DEFAULT_SIZES) else args.gaussians
         run_window(sizes, demo=not args.avatars, json_path=args.json, moves=min(args.moves, 6),
                    seconds=args.window_seconds, precisions=tuple(args.window_precision or ()) or None,
-                   avatars=args.avatars)
+                   avatars=args.avatars, beside_load=max(0, min(args.beside_load, 64)))
         return 0
     from npga_core.files.checkpoint import save_avatar
     from npga_core.files.loading import DEMO_AVATAR

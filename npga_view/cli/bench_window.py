@@ -22,6 +22,7 @@ import math
 import os
 import shutil
 import subprocess
+import sys
 import tempfile
 import time
 import zlib
@@ -278,11 +279,68 @@ def _synthetic(n: int, folder: Path) -> tuple[str, str]:
     return str(path), str(seq)
 
 
+#: A busy process for `--beside-load`: spins until its deadline or until its parent is gone (it never outlives
+#: the bench), checking both every ~10 ms of work.
+_HOG = ("import os, sys, time\n"
+        "parent, end = int(sys.argv[1]), time.monotonic() + float(sys.argv[2])\n"
+        "while time.monotonic() < end and os.getppid() == parent:\n"
+        "    sum(range(100000))\n")
+HOG_LIMIT_S = 3600.0  # the longest a busy process runs (a bench of every case takes minutes)
+
+
+def start_load(n: int) -> list[subprocess.Popen]:
+    """`n` busy processes (bounded: `HOG_LIMIT_S`, and they end when this process does)."""
+    return [subprocess.Popen([sys.executable, "-c", _HOG, str(os.getpid()), str(HOG_LIMIT_S)],
+                             stdin=subprocess.DEVNULL, stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+            for _ in range(n)]
+
+
+def stop_load(procs: list[subprocess.Popen]) -> None:
+    """End the busy processes this bench started (by their handles) and reap them."""
+    for p in procs:
+        if p.poll() is None:
+            p.terminate()
+    for p in procs:
+        try:
+            p.wait(timeout=5)
+        except subprocess.TimeoutExpired:
+            p.kill()
+            p.wait()
+
+
 def run(gaussians: list[int], demo: bool, json_path: Path | None, moves: int = 6, seconds: float = 6.0,
-        precisions: tuple[str, ...] | None = None, avatars: Sequence[str] = ()) -> list[dict]:
-    """Measure the demo and synthetic avatars of the given sizes (budgeting on with and without the merged live
-cloud, and off) and print a table. With `precisions` (e.g. fp32 bf16): the default drawing only, once per
-precision of the exact dynamics, alternating in the same run."""
+        precisions: tuple[str, ...] | None = None, avatars: Sequence[str] = (), beside_load: int = 0) -> list[dict]:
+    """`measure_all` on an idle machine and, with `beside_load` N > 0, again beside N busy processes of its own
+    (each row's avatar says which); one table."""
+    results: list[dict] = []
+    lives: list[dict] = []
+    for load in ([0, beside_load] if beside_load > 0 else [0]):
+        hogs = start_load(load)
+        try:
+            r, lv = _measure_all(gaussians, demo, moves, seconds, precisions, avatars)
+        finally:
+            stop_load(hogs)
+        tag = f" (beside {load} busy)" if load else (" (idle)" if beside_load else "")
+        for row in r + lv:
+            row["avatar"] += tag
+            row["beside_load"] = load
+        results += r
+        lives += lv
+    if json_path is not None:
+        json_path.write_text(json.dumps(results + lives, indent=1))
+    print(table(results))
+    print(profile_table(results))
+    for live in lives:
+        print(json.dumps(live))
+        print(live_link_table(live))
+    return results
+
+
+def _measure_all(gaussians: list[int], demo: bool, moves: int, seconds: float,
+                 precisions: tuple[str, ...] | None, avatars: Sequence[str]) -> tuple[list[dict], list[dict]]:
+    """The rows of the demo, the given avatars and synthetic avatars of the given sizes (budgeting on with and
+    without the merged live cloud, and off), and their Live Link rows. With `precisions` (e.g. fp32 bf16): the
+    default drawing only, once per precision of the exact dynamics, alternating in the same run."""
     from npga_core.files.loading import DEMO_DIR
 
     proc = _start_xvfb()
@@ -307,14 +365,7 @@ precision of the exact dynamics, alternating in the same run."""
     finally:
         if proc is not None:
             proc.terminate()
-    if json_path is not None:
-        json_path.write_text(json.dumps(results, indent=1))
-    print(table(results))
-    print(profile_table(results))
-    for live in lives:
-        print(json.dumps(live))
-        print(live_link_table(live))
-    return results
+    return results, lives
 
 
 def profile_table(results: list[dict]) -> str:
