@@ -56,7 +56,8 @@ def summary(avatar: Avatar, path: str, load_s: float) -> str:
         lines.append("  dynamics: none (static)")
     else:
         dyn = avatar.dynamics
-        lines.append(f"  dynamics (rotation rule: {dyn.rotation_op}):")
+        lines.append(f"  dynamics (rotation rule: {dyn.rotation_op}):" if dyn.networks() else
+                     "  dynamics: a linear rig, no networks")
         if dyn.condition:
             lines.append(f"  frame vector: expression {dyn.expression_dim} + condition {dyn.condition_dim} "
                          f"({dyn.condition.get('description', dyn.condition.get('kind', ''))})")
