@@ -468,6 +468,7 @@ def test_sequence_head_pose_moves_the_view(app, tmp_path):
 
     path = tmp_path / "small.npga"
     save_avatar(make_synthetic_avatar(3000, seed=3), path)
+    app.state.show_stats = False  # its figures change from frame to frame over the view (more so on a busy machine)
     assert app.open_avatar(str(path))
     code = app.avatar.neutral_code()
     t = 8
@@ -499,7 +500,7 @@ def test_sequence_head_pose_moves_the_view(app, tmp_path):
     np.testing.assert_allclose(app.current_camera().world_to_camera, base, atol=1e-9)
     back = app.read_window(viewport_only=True)
     moved = (np.abs(back.astype(int) - unmoved.astype(int)).max(axis=2) > 8).mean()
-    assert moved < 0.002  # the same picture again (the statistics overlay's figures may differ)
+    assert moved < 0.002  # the same picture again
 
 
 # --- frame-budgeted drawing (#14): behaviour in the real window, never rates ------------------------------------

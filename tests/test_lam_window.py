@@ -70,6 +70,7 @@ def _take(path, rows: int, channel: str) -> None:
 def test_window_on_a_lam_zip(window):
     app, root = window
     zpath = write_lam_zip(root / "avatar.zip", n=1500, seed=4)
+    app.state.show_stats = False  # its figures change from frame to frame over the view
     blank = app.read_window(viewport_only=True)
     assert app.open_avatar(str(zpath)), app.state.errors
     a = app.avatar
@@ -86,7 +87,7 @@ def test_window_on_a_lam_zip(window):
     _until_changed(app, opened)
     closed = _settled(app)
     differs = (np.abs(closed.astype(int) - rest.astype(int)).max(axis=2) > 8).mean()
-    assert differs < 0.01, differs  # back to the rest pose's pixels (jaw open changed far more)
+    assert differs < 0.002, differs  # back to the rest pose's pixels (jaw open changed far more)
     take = root / "take.csv"
     _take(take, 60, "jawOpen")
     assert app.open_sequence(str(take)), app.state.errors
@@ -101,6 +102,7 @@ def test_live_link_stream_drives_a_lam_zip(window):
 
     app, root = window
     zpath = write_lam_zip(root / "live.zip", n=1500, seed=5)
+    app.state.errors = []
     assert app.open_avatar(str(zpath)), app.state.errors
     rest = _until_changed(app, app.read_window(viewport_only=True), min_fraction=0.0)
     assert app.live.start("127.0.0.1:0"), app.state.errors
