@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from npga_core.camera.cameras import DEFAULT_HEIGHT, DEFAULT_WIDTH, Camera, frame_points
+from npga_core.errors import CommandError
 from npga_core.posing.precision import PRECISION_HELP
 
 if TYPE_CHECKING:
@@ -31,7 +32,7 @@ _Vec3 = tuple[float, float, float]
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
-class RenderError(Exception):
+class RenderError(CommandError):
     """A problem with the arguments or inputs of `render`, reported as one line with exit code 2."""
 
 
