@@ -474,6 +474,10 @@ def _check_values(t: dict[str, np.ndarray], header: dict) -> None:
         zero = int(np.count_nonzero(nq < 1e-16))
         if zero:
             raise _Invalid(f"gaussians.quats has {zero} zero-length quaternion{'s' if zero > 1 else ''}")
+    m = t["gaussians.means"]
+    if m.size and np.abs(m).max() > MAX_POSITION:  # the limit the PLY reader and every other reader apply
+        raise _Invalid(f"gaussians.means reach {float(np.abs(m).max()):.3g}, beyond the +-{MAX_POSITION:g} they "
+                       "may have")
     ls = t["gaussians.log_scales"]
     if ls.size and np.abs(ls).max() > 80:
         raise _Invalid("gaussians.log_scales has values beyond +-80 (scale overflows float32)")
