@@ -26,7 +26,8 @@ TEXT_FUNCTIONS = ("text", "text_disabled", "text_colored", "text_wrapped", "text
                   "label_text", "set_tooltip", "separator_text", "button", "small_button", "selectable",
                   "menu_item", "begin_menu", "checkbox", "radio_button", "tree_node", "collapsing_header",
                   "begin_combo", "combo", "begin", "begin_child", "begin_tab_item", "slider_float", "slider_int",
-                  "drag_float", "drag_int", "input_text", "progress_bar", "plot_lines", "plot_histogram")
+                  "drag_float", "drag_int", "input_text", "progress_bar", "plot_lines", "plot_histogram",
+                  "calc_text_size")
 
 
 def drawable(text: str) -> str:
