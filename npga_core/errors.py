@@ -5,6 +5,9 @@ from __future__ import annotations
 import os
 from pathlib import Path
 
+#: Longest problem text of an error (a safety net: values in messages are shortened with `brief` already)
+MAX_PROBLEM = 600
+
 
 def shown(text: str | bytes | Path) -> str:
     """`text` safe to print, to draw in imgui or to pass to an encoder: printable characters kept, everything
@@ -46,7 +49,8 @@ class AvatarFileError(Exception):
 
     def __init__(self, path: str | Path, problem: str):
         self.path = shown(path)
-        self.problem = shown(" ".join(str(problem).split()))  # keep it on one line
+        text = " ".join(str(problem)[:MAX_PROBLEM * 4].split())  # one line
+        self.problem = shown(text if len(text) <= MAX_PROBLEM else text[:MAX_PROBLEM] + "...")
         super().__init__(f"{self.path}: {self.problem}")
 
 
