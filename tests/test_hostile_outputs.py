@@ -130,3 +130,22 @@ def test_protocol_crop_of_an_extreme_image_is_refused():
         cam = Camera(np.eye(4), 10.0, 10.0, w / 2, h / 2, w, h)
         with pytest.raises(AvatarFileError, match="cam_X.png.*pixels"):
             protocol_view(cam, np.zeros((h, w, 3), np.float32), None, source="cam_X.png")
+
+
+def test_warnings_become_one_line_notes(capsys):
+    """Python's and numpy's warnings met by a command are not printed as they come (two raw lines each, before
+    the one error line): collected, then printed after a successful command as one escaped line each."""
+    import warnings
+
+    from npga_view.cli.main import _print_notes, _warnings_as_notes
+
+    notes: dict[str, None] = {}
+    with _warnings_as_notes(notes):
+        np.array([1e300]).astype(np.float32)  # RuntimeWarning: overflow encountered in cast
+        warnings.warn("odd \ud800\nname", UserWarning, stacklevel=1)
+        warnings.warn("odd \ud800\nname", UserWarning, stacklevel=1)  # once
+    assert capsys.readouterr().err == ""
+    _print_notes(notes)
+    lines = capsys.readouterr().err.splitlines()
+    assert len(lines) == 2 and all(line.startswith("npga-view: note: ") for line in lines), lines
+    assert "overflow" in lines[0] and "\\ud800\\nname" in lines[1]
