@@ -66,7 +66,9 @@ class VideoWriter:
                  preset: str = "medium", crf: int = 18):
         import av
 
-        self.path = Path(path)
+        from npga_core.files.atomic import check_output
+
+        self.path = check_output(path, "a video")  # the output gate: no folder, FIFO or device in its place
         self.size = even_size(width, height)
         self.fps = None if fps is None else _rate(fps)
         self.frames = 0

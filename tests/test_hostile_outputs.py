@@ -149,3 +149,16 @@ def test_warnings_become_one_line_notes(capsys):
     lines = capsys.readouterr().err.splitlines()
     assert len(lines) == 2 and all(line.startswith("npga-view: note: ") for line in lines), lines
     assert "overflow" in lines[0] and "\\ud800\\nname" in lines[1]
+
+
+@pytest.mark.parametrize("command", ["render .png", "render .npy", "export .ply"])
+@pytest.mark.parametrize("case", ["a FIFO", "an existing folder"])
+def test_render_and_export_out(command, case, world, tmp_path):  # noqa: F811
+    """The same gate for render (images, arrays; videos through VideoWriter) and export: refused before any work,
+    the FIFO left alone."""
+    name, suffix = command.split()
+    target = tmp_path / f"target{suffix}"
+    os.mkfifo(target) if case == "a FIFO" else target.mkdir()
+    reply, text = _run(world, tmp_path, [name, str(world["avatar"]), "--out", str(target)])
+    _one_line(reply, text, str(target))
+    assert target.exists() and not target.is_file()

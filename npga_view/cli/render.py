@@ -491,6 +491,9 @@ def _check_output(args) -> str:
         raise RenderError("a single image from --sequence needs --frame K (or write a .mp4)")
     if not out.parent.is_dir():
         raise RenderError(f"--out {out}: folder {out.parent} does not exist")
+    from npga_core.files.atomic import check_output
+
+    check_output(out, "the render")  # before any work: a folder, FIFO or device in its place is refused
     return suffix
 
 
@@ -529,7 +532,9 @@ def _render(args) -> int:
     if suffix != ".mp4":
         image, picture = frames.render(None if codes is None else codes[0])
         if suffix == ".npy":
-            np.save(out, image.astype(np.float32))
+            from npga_core.files.atomic import atomic_write
+
+            atomic_write(out, lambda fh: np.save(fh, image.astype(np.float32)))
         else:
             _write_image(out, picture)
         if args.counts:
