@@ -68,7 +68,7 @@ class VideoWriter:
 
         from npga_core.files.atomic import check_output
 
-        self.path = check_output(path, "a video")  # the output gate: no folder, FIFO or device in its place
+        self.path = check_output(path, "a video", make_parents=False)  # the output gate: no folder, FIFO, device
         self.size = even_size(width, height)
         self.fps = None if fps is None else _rate(fps)
         self.frames = 0

@@ -62,10 +62,10 @@ def _reason(e: OSError) -> str:
     return e.strerror or type(e).__name__
 
 
-def check_output(path: str | Path, what: str = "a file") -> Path:
+def check_output(path: str | Path, what: str = "a file", make_parents: bool = True) -> Path:
     """`path` as a Path once it can be written as `what`: an existing target must be a regular file (a folder,
     FIFO, device or socket is refused, never opened), its folder is created (OutputError when a file is in the
-    way, permission is missing, the name is too long, ...)."""
+    way, permission is missing, the name is too long, ...; without `make_parents`, when it is missing)."""
     path = Path(path)
     try:
         st = os.stat(path)
@@ -77,6 +77,10 @@ def check_output(path: str | Path, what: str = "a file") -> Path:
         kind = "a folder" if stat.S_ISDIR(st.st_mode) else "a FIFO" if stat.S_ISFIFO(st.st_mode) else \
             "not a regular file"
         raise OutputError(path, f"is {kind}; cannot write {what} there")
+    if not make_parents:
+        if not os.path.isdir(path.parent):
+            raise OutputError(path, f"its folder {path.parent} is missing")
+        return path
     try:
         path.parent.mkdir(parents=True, exist_ok=True)
     except OSError as e:
