@@ -32,7 +32,7 @@ GHA_SMALL = {"feature_dim": 12, "exp_dim": 6, "hidden": 32, "channels": 8, "freq
 TIMEOUT_S = 120.0  # a bound on a hang, not a speed
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # shared with test_hostile_outputs.py: one fork server
 def world(tmp_path_factory):
     """A small animatable avatar, a PLY, valid caches to tamper with, and the fork server."""
     from npga_core.files.checkpoint import save_avatar
