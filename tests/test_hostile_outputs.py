@@ -162,3 +162,14 @@ def test_render_and_export_out(command, case, world, tmp_path):  # noqa: F811
     reply, text = _run(world, tmp_path, [name, str(world["avatar"]), "--out", str(target)])
     _one_line(reply, text, str(target))
     assert target.exists() and not target.is_file()
+
+
+def test_capture_at_a_path_that_is_not_utf8(world, tmp_path):  # noqa: F811
+    """OpenCV's reader died of SIGSEGV on a capture path that is not valid UTF-8: images are now decoded from bytes
+    read through the gate, so a capture folder of any name is read (evaluate's reader, in a forked child)."""
+    root = _capture(tmp_path / os.fsdecode(b"capture-\xff\xfe"))
+    out, err = tmp_path / "out.txt", tmp_path / "err.txt"
+    reply = world["server"].run({"call": "tests.hostile_readers_corpus:open_capture", "args": [str(root)],
+                                 "stdout": str(out), "stderr": str(err), "limit_mb": LIMIT_MB, "timeout": TIMEOUT_S})
+    assert reply == {"timed_out": False, "exit": 0, "signal": None}, (reply, err.read_text(errors="replace"))
+    assert err.read_text() == "" and "problem" not in out.read_text(errors="replace")
