@@ -230,6 +230,7 @@ def _evaluate(args) -> int:
     rows: list[Row] = []
     keep: list[tuple[float, int, str, np.ndarray, np.ndarray]] = []
     posed_frame = None
+    printed = 0
     t0 = time.perf_counter()
     for i, (f, c) in enumerate(views):
         loaded = _load_view(args, capture, capture.views[(f, c)], mask_kind, problems)
@@ -252,6 +253,9 @@ def _evaluate(args) -> int:
                      render if mask is None else _comp(render, mask, background)))
         keep = sorted(keep, key=lambda k: k[0])[:max(args.worst, 0)]
         _progress(i + 1, len(views), t0)
+        printed = i + 1
+    if printed < len(views):  # the line ends even when the last views were problems
+        _progress(len(views), len(views), t0)
     elapsed = time.perf_counter() - t0
     notes.append(f"{len(rows)} views in {elapsed:.1f} s ({elapsed / max(len(rows), 1) * 1e3:.0f} ms a view)")
     summary = write_report(out, rows, keep, problems, notes, protocol=args.protocol, avatar=str(args.avatar))
