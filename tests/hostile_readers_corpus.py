@@ -294,6 +294,14 @@ def _jpeg(width: int, height: int) -> bytes:
     return cv2.imencode(".jpg", rng.integers(0, 255, (height, width, 3), dtype=np.uint8))[1].tobytes()
 
 
+def _jpeg_cut_inside() -> bytes:
+    """A JPEG cut in the middle of its image data with the end marker put back (libjpeg decodes it, grey below the
+    cut, and says so only on stderr)."""
+    j = _jpeg(64, 48)
+    mid = (j.index(b"\xff\xda") + len(j)) // 2
+    return j[:mid] + j[-2:]
+
+
 def captures(folder: Path) -> dict[str, Path]:
     """NeRSemble (camera_params.json + timesteps/frame_N/images/cam_S.png) and GHA (images/N/image_C.png +
     cameras/N/camera_C.npz) capture folders with hostile rigs, cameras and images. Names starting with
@@ -317,6 +325,7 @@ def captures(folder: Path) -> dict[str, Path]:
         "partial: camera B's image is text": (rig, {"A": good, "B": b"not an image"}),
         # #36: libjpeg decodes a cut JPEG as grey and says so only on stderr: it was scored silently
         "partial: camera B's JPEG truncated": (rig, {"A": good, "B": _jpeg(16, 12)[:-40]}),
+        "partial: camera B's JPEG cut inside, its end marker kept": (rig, {"A": good, "B": _jpeg_cut_inside()}),
     }
     out = {}
     for i, (name, (rig_json, images)) in enumerate(nersemble.items()):
