@@ -391,15 +391,18 @@ class ViewerApp:
 
     # ------------------------------------------------------------------------------------------ loop
     def run(self, screenshot: str | None = None, quit_after_frames: int | None = None) -> int:
-        """The interactive loop. With `quit_after_frames`, count frames from the first drawn pose."""
-        counted = 0
+        """The interactive loop. With `quit_after_frames`, count frames from the first drawn pose: settled frames
+        (the view finished, refined), or any drawn frame while a sequence plays (a playing view never settles: a
+        looping sequence on the demo never ended the run); at most 20x as many frames pass in all."""
+        counted = shown = 0
         try:
             while not self.should_close:
                 self.step()
-                if quit_after_frames is not None and (self.poses.first_pose_shown or self.avatar is None) \
-                        and self.draws.settled and self.refining.complete:
-                    counted += 1
-                    if counted >= quit_after_frames:
+                if quit_after_frames is not None and (self.poses.first_pose_shown or self.avatar is None):
+                    shown += 1
+                    if self.state.timeline.playing or (self.draws.settled and self.refining.complete):
+                        counted += 1
+                    if counted >= quit_after_frames or shown >= 20 * max(quit_after_frames, 10):
                         if screenshot:
                             self.screenshot(screenshot)
                         break

@@ -66,7 +66,9 @@ class VideoWriter:
                  preset: str = "medium", crf: int = 18):
         import av
 
-        self.path = Path(path)
+        from npga_core.files.atomic import check_output
+
+        self.path = check_output(path, "a video", make_parents=False)  # the output gate: no folder, FIFO, device
         self.size = even_size(width, height)
         self.fps = None if fps is None else _rate(fps)
         self.frames = 0

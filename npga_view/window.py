@@ -17,7 +17,7 @@ from typing import Any
 import moderngl
 import numpy as np
 
-from npga_view.imgui_glfw import glfw, imgui
+from npga_view.imgui_glfw import drawable, glfw, imgui
 from npga_view.rendering.gl import release_current_egl, window_context
 
 SIDE_PANEL = 400  # logical pixels
@@ -87,7 +87,7 @@ class Window:
         return side, 0, max(1, fw - side), max(1, fh)
 
     def set_title(self, title: str) -> None:
-        glfw.set_window_title(self._h, title)
+        glfw.set_window_title(self._h, drawable(title))
 
     # -- frames -----------------------------------------------------------------------------------------
     def take_input(self, wait_s: float = 0.0) -> None:

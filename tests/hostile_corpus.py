@@ -294,6 +294,11 @@ def ply_files(folder: Path, good: Path) -> dict[str, Path]:
         "positions of 1e30": head.encode() + _ply_column(body, head, "x", 1e30),
         "bare property line": head.replace("property float x\n", "property\nproperty float x\n").encode()
         + raw[end:],
+        # #36: numpy's warnings (loadtxt's notices, overflow in a cast) were printed before the one line
+        "ascii with no vertex rows": head.replace("binary_little_endian", "ascii").encode(),
+        "ascii with empty lines only": head.replace("binary_little_endian", "ascii").encode() + b"\n\n\n",
+        "ascii values of 1e300": head.replace("binary_little_endian", "ascii").encode()
+        + (" ".join(["1e300"] * head.count("property ")) + "\n").encode() * n,
     }
     out = _write_all(folder, ".ply", cases)
     sparse = folder / "sparse.ply"  # claims 5e8 vertices; the file really is that long (sparse, no disk used)

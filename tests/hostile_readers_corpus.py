@@ -153,6 +153,10 @@ def gha_folders(folder: Path, head: dict, supres: dict) -> dict[str, Path]:
         "gaussianhead_latest is a FIFO": "fifo",
         "gaussianhead_latest is a directory": "dir",
         "gaussianhead_latest is /dev/zero": "dev",
+        # #36: network descriptions the .npga format or the renderer cannot hold
+        "hidden width 0": _narrowed(head, "exp_deform_mlp", 0),
+        "2 colour channels": _coloured(head, 2),
+        "5000 colour channels": _coloured(head, 5000),
     }
     out = {}
     for i, (name, content) in enumerate(cases.items()):
@@ -174,6 +178,38 @@ def gha_folders(folder: Path, head: dict, supres: dict) -> dict[str, Path]:
     return out
 
 
+def _narrowed(head: dict, name: str, width: int) -> dict:
+    """`head` with network `name`'s hidden layers `width` wide (the weights resized, zeros)."""
+    import torch
+
+    d = dict(head)
+    convs = sorted(int(k.split(".conv")[1].split(".")[0]) for k in head if k.startswith(f"{name}.conv")
+                   and k.endswith(".weight"))
+    skip = (len(convs) + 1) // 2
+    n_in = head[f"{name}.conv0.weight"].shape[1]
+    for i in convs:
+        w = head[f"{name}.conv{i}.weight"]
+        out = w.shape[0] if i == convs[-1] else width
+        cin = (n_in if i == 0 else width) + (n_in if i == skip else 0)
+        d[f"{name}.conv{i}.weight"] = torch.zeros(out, cin, 1)
+        d[f"{name}.conv{i}.bias"] = torch.zeros(out)
+    return d
+
+
+def _coloured(head: dict, channels: int) -> dict:
+    """`head` whose colour networks give `channels` colour channels (exp_color's output, pose_color's too)."""
+    import torch
+
+    d = dict(head)
+    for name in ("exp_color_mlp", "pose_color_mlp"):
+        last = max(int(k.split(".conv")[1].split(".")[0]) for k in head if k.startswith(f"{name}.conv")
+                   and k.endswith(".weight"))
+        w = head[f"{name}.conv{last}.weight"]
+        d[f"{name}.conv{last}.weight"] = torch.zeros(channels, w.shape[1], 1)
+        d[f"{name}.conv{last}.bias"] = torch.zeros(channels)
+    return d
+
+
 def gha_configs(folder: Path) -> dict[str, Path]:
     """GHA YAML configs (`import gha --config`): tags that would run code, huge and deep values."""
     cases = {
@@ -190,6 +226,10 @@ def gha_configs(folder: Path) -> dict[str, Path]:
         "not UTF-8": b"gaussianheadmodule:\n  deform_scale: \xff\xfe\n",
         "2 MB of comments": b"#" + b"x" * (2 << 20) + b"\n",
         "pos_freq that does not fit": b"gaussianheadmodule:\n  pos_freq: 7\n",
+        # #36: a billion laughs: safe_load shares the nodes, a repr in the error message expanded 10^9 items
+        "an alias bomb as deform_scale": b"a: &a [x, x, x, x, x, x, x, x, x, x]\n" + b"".join(
+            b"%c: &%c [*%c, *%c, *%c, *%c, *%c, *%c, *%c, *%c, *%c, *%c]\n" % ((98 + i, 98 + i) + (97 + i,) * 10)
+            for i in range(8)) + b"gaussianheadmodule:\n  deform_scale: *i\n",
     }
     return {**_write_all(folder, ".yaml", cases), **_special(folder, "config.yaml")}
 
@@ -247,6 +287,21 @@ def _png(width: int, height: int, rows: bytes | None = None, grey: bool = False)
             + chunk(b"IDAT", zlib.compress(data)) + chunk(b"IEND", b""))
 
 
+def _jpeg(width: int, height: int) -> bytes:
+    import cv2
+
+    rng = np.random.default_rng(1)
+    return cv2.imencode(".jpg", rng.integers(0, 255, (height, width, 3), dtype=np.uint8))[1].tobytes()
+
+
+def _jpeg_cut_inside() -> bytes:
+    """A JPEG cut in the middle of its image data with the end marker put back (libjpeg decodes it, grey below the
+    cut, and says so only on stderr)."""
+    j = _jpeg(64, 48)
+    mid = (j.index(b"\xff\xda") + len(j)) // 2
+    return j[:mid] + j[-2:]
+
+
 def captures(folder: Path) -> dict[str, Path]:
     """NeRSemble (camera_params.json + timesteps/frame_N/images/cam_S.png) and GHA (images/N/image_C.png +
     cameras/N/camera_C.npz) capture folders with hostile rigs, cameras and images. Names starting with
@@ -268,6 +323,9 @@ def captures(folder: Path) -> dict[str, Path]:
         "partial: camera B's image truncated": (rig, {"A": good, "B": good[:40]}),
         "partial: camera B's PNG claims 100000x100000": (rig, {"A": good, "B": _png(100000, 100000, b"\0")}),
         "partial: camera B's image is text": (rig, {"A": good, "B": b"not an image"}),
+        # #36: libjpeg decodes a cut JPEG as grey and says so only on stderr: it was scored silently
+        "partial: camera B's JPEG truncated": (rig, {"A": good, "B": _jpeg(16, 12)[:-40]}),
+        "partial: camera B's JPEG cut inside, its end marker kept": (rig, {"A": good, "B": _jpeg_cut_inside()}),
     }
     out = {}
     for i, (name, (rig_json, images)) in enumerate(nersemble.items()):
@@ -297,9 +355,21 @@ def captures(folder: Path) -> dict[str, Path]:
         "partial: camera 01 missing": ("missing", good),
         "partial: image 01 a FIFO": ({"extrinsic": ext, "intrinsic": kk}, "fifo"),
         "partial: image 01 claims 100000x100000": ({"extrinsic": ext, "intrinsic": kk}, _png(100000, 100000, b"\0")),
+        # #36: OpenCV's reader crashed (SIGSEGV) on a path that is not UTF-8; camera 01 here is a usable view named
+        # by an undecodable byte, the problem line is camera 02's (no camera file)
+        "partial: a camera id that is not UTF-8": ("undecodable", good),
     }
     for i, (name, (camera, image)) in enumerate(gha.items()):
         root = folder / f"gha{i:02d}"
+        if camera == "undecodable":
+            for cam_id in ("00", os.fsdecode(b"\xff\xfe"), "02"):
+                (root / "images" / "0000").mkdir(parents=True, exist_ok=True)
+                (root / "cameras" / "0000").mkdir(parents=True, exist_ok=True)
+                (root / "images" / "0000" / f"image_{cam_id}.png").write_bytes(good)
+                if cam_id != "02":
+                    np.savez(root / "cameras" / "0000" / f"camera_{cam_id}.npz", extrinsic=ext, intrinsic=kk)
+            out[name] = root
+            continue
         for cam_id in ("00", "01"):
             (root / "images" / "0000").mkdir(parents=True, exist_ok=True)
             (root / "cameras" / "0000").mkdir(parents=True, exist_ok=True)

@@ -60,7 +60,34 @@ def _floats_set(data: bytes, start: int, stop: int, value: float) -> bytes:
     return bytes(out)
 
 
-def degenerate_avatars(folder: Path, good_ply: Path, good_npga: Path, guards: bool = False) -> dict[str, Path]:
+def _with_header(src: Path, dst: Path, change) -> Path:
+    """`src` (.npga) with its JSON header changed by `change(header)`, written as ASCII JSON (lone surrogates as
+    \\u escapes, as a hostile writer may put them)."""
+    raw = src.read_bytes()
+    hlen = int.from_bytes(raw[8:16], "little")
+    header = json.loads(raw[16:16 + hlen])
+    change(header)
+    t = json.dumps(header).encode()
+    t += b" " * ((-(16 + len(t))) % 64)
+    dst.write_bytes(raw[:8] + len(t).to_bytes(8, "little") + t + raw[16 + hlen:])
+    return dst
+
+
+def _odd_v2_names(header: dict) -> None:
+    """A format-2 header whose condition description, blend notes and blend name hold lone surrogates, newlines
+    and an escape sequence (#36: `info` died printing them)."""
+    dyn = header["dynamics"]
+    dyn["condition"]["description"] = "pose\ud800\n\x1b[31m"
+    old, new = "pose", "po\udcffse\n"
+    header["gaussians"]["blend_names"] = [new if b == old else b for b in header["gaussians"]["blend_names"]]
+    dyn["blend"] = {(new if k == old else k): v + "\udc80" for k, v in dyn["blend"].items()}
+    for net in dyn["networks"].values():
+        if net.get("blend") == old:
+            net["blend"] = new
+
+
+def degenerate_avatars(folder: Path, good_ply: Path, good_npga: Path, guards: bool = False,
+                       good_v2: Path | None = None) -> dict[str, Path]:
     """Valid but degenerate avatars, which must open, render an empty image and say so (exit 0, no traceback,
     no warning): 0 Gaussians, names with lone surrogates; with `guards`, also the cases today's code already
     took (all transparent, all at one point), which are no findings of the corpus."""
@@ -95,4 +122,7 @@ def degenerate_avatars(folder: Path, good_ply: Path, good_npga: Path, guards: bo
     names = folder / "names.npga"
     names.write_bytes(hraw[:8] + len(t).to_bytes(8, "little") + t + hraw[16 + hlen:])
     out["lone surrogates and newlines in part names and provenance"] = names
+    if good_v2 is not None:
+        out["lone surrogates in a format-2 description and blend name"] = _with_header(
+            good_v2, folder / "names-v2.npga", _odd_v2_names)
     return out

@@ -32,7 +32,7 @@ GHA_SMALL = {"feature_dim": 12, "exp_dim": 6, "hidden": 32, "channels": 8, "freq
 TIMEOUT_S = 120.0  # a bound on a hang, not a speed
 
 
-@pytest.fixture(scope="module")
+@pytest.fixture(scope="session")  # shared with test_hostile_outputs.py: one fork server
 def world(tmp_path_factory):
     """A small animatable avatar, a PLY, valid caches to tamper with, and the fork server."""
     from npga_core.files.checkpoint import save_avatar
@@ -63,6 +63,10 @@ def world(tmp_path_factory):
     import torch
 
     torch.save(gha_head, gha / "gaussianhead_latest")
+    from npga_core.files.gha import import_gha
+
+    v2 = root / "gha.npga"
+    save_avatar(import_gha(gha), v2)
     shrink = root / "shrink"
     shrink.mkdir()
     from .cli_forkserver import ForkServer
@@ -71,7 +75,7 @@ def world(tmp_path_factory):
                                    "XDG_CACHE_HOME": str(root / "cache")})
     yield {"root": root, "avatar": npga, "dim": avatar.code_dim, "n": len(avatar), "ply": ply, "bake": bake,
            "preview": preview, "key": "k" * 32, "server": server, "gha": gha, "gha_head": gha_head,
-           "gha_supres": gha_sr}
+           "gha_supres": gha_sr, "v2": v2}
     server.close()
 
 
@@ -165,7 +169,7 @@ READERS: dict[str, tuple[Callable[[Path, dict], dict[str, Path]], dict]] = {
         _cli(lambda p, w: ["view", str(w["avatar"]), "--quit-after-frames", "1"],
              env=lambda p: {"XDG_CONFIG_HOME": str(p)}, names=lambda p: [p / "npga-view" / "recent.json"])),
     "degenerate avatars (info)": (
-        lambda d, w: hc.degenerate_avatars(d, w["ply"], w["avatar"]),
+        lambda d, w: hc.degenerate_avatars(d, w["ply"], w["avatar"], good_v2=w["v2"]),
         _accepted(lambda p, w: ["info", str(p)])),
     "degenerate avatars (export)": (
         lambda d, w: {k: v for k, v in hc.degenerate_avatars(d, w["ply"], w["avatar"]).items()

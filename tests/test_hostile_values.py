@@ -172,3 +172,18 @@ def test_sigterm_ends_a_render_inside_a_cnn_of_minutes(tmp_path):
     lines = [line for line in err.splitlines() if line.strip()]
     assert len(lines) == 1 and "stopped by SIGTERM" in lines[0] and "Traceback" not in err, err[-2000:]
     assert not out.exists()
+
+
+def test_messages_never_repr_untrusted_values():
+    """#36: a value from a file in an error message is shortened and escaped (`brief`), never its repr: a YAML
+    alias bomb's repr expanded to billions of items, an integer of 5000 digits cannot be printed, a long string
+    made a message of megabytes; AvatarFileError caps what is left."""
+    from npga_core.errors import MAX_PROBLEM, AvatarFileError, brief
+
+    bomb: list = ["x"] * 10
+    for _ in range(9):
+        bomb = [bomb] * 10  # 10^10 leaves, shared (what yaml.safe_load makes of aliases)
+    assert brief(bomb) == "a list of 10 items"
+    assert brief(10**5000) == "an integer of 16610 bits"
+    assert brief("a\ud800" * 1000).startswith("'a\\\\ud800") and brief("a" * 1000).endswith("(1000 characters)")
+    assert len(str(AvatarFileError("f.json", "x" * 10**6))) < MAX_PROBLEM + 20

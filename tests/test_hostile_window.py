@@ -173,3 +173,81 @@ def test_window_with_an_avatar_of_0_gaussians(display, tmp_path, monkeypatch):
         assert app.frames == before + 1 and not app.should_close
     finally:
         app.close()
+
+
+def test_window_extreme_means_surrogate_names_and_playback_quit(display, tmp_path, monkeypatch):
+    """#36: an avatar whose means reach the position limit opens and is framed (3e38, beyond it, was opened and
+    framing it failed: `look_at: eye and target coincide`; it is now refused by the reader, one line, the window
+    stays); names with lone surrogates where the Live Link panel (basis names nothing drives), the Timeline's
+    head-pose source and the overlay draw them (imgui raised TypeError); and `--quit-after-frames` ends a
+    playing sequence of 5 frames (it counted only settled frames, which playback never has)."""
+    import threading
+
+    from imgui_bundle import imgui
+
+    from npga_core.camera.cameras import MAX_POSITION
+    from npga_core.files.sequences import ExpressionSequence
+    from npga_core.model.blendshapes import BlendshapeBasis
+    from npga_view.app import ViewerApp
+
+    monkeypatch.setenv("XDG_CONFIG_HOME", str(tmp_path / "config"))
+    monkeypatch.setenv("XDG_CACHE_HOME", str(tmp_path / "cache"))
+    far, beyond, named = tmp_path / "far.npga", tmp_path / "beyond.npga", tmp_path / "named.npga"
+    for path, value in ((far, MAX_POSITION), (beyond, 3e38)):
+        a = make_synthetic_avatar(120, seed=6, with_f=False, with_g=False)
+        a.cloud.means[:] = value
+        a.cloud.means[::2] *= -1
+        save_avatar(a, path)
+    avatar = make_synthetic_avatar(300, seed=4)
+    d = avatar.code_dim
+    avatar.blendshapes = BlendshapeBasis(("jawOpen", "odd\ud800\nname", "x\udcff"), np.zeros((d, 3), np.float32),
+                                         np.zeros(d, np.float32), "basis\ud800")
+    save_avatar(avatar, named)
+    seq = tmp_path / "posed.npzseq"
+    ExpressionSequence(np.zeros((5, d), np.float32), 25.0, "s\ud800", pose=np.tile(np.eye(4), (5, 1, 1)),
+                       pose_source="tracked\udcff\n\x1b[31m").save(seq)
+    for name in ("open", "collapsing"):  # every tree node and header open, so that every panel draws its names
+        original = imgui.tree_node if name == "open" else imgui.collapsing_header
+
+        def forced(*a, _original=original, **k):
+            imgui.set_next_item_open(True, imgui.Cond_.always)
+            return _original(*a, **k)
+
+        monkeypatch.setattr(imgui, "tree_node" if name == "open" else "collapsing_header", forced)
+    app = ViewerApp(900, 700, vsync=False, threads=1, remember_recent=False)
+    fired = threading.Event()
+    try:
+        assert app.open_avatar(str(far)), app.state.errors
+        for _ in range(3):
+            app.step()
+        assert np.isfinite(app.state.camera.target).all() and not app.state.errors, app.state.errors
+        assert not app.open_avatar(str(beyond))
+        assert len(app.state.errors) == 1 and str(beyond) in app.state.errors[0]
+        app.state.errors = []
+        assert app.open_avatar(str(named)), app.state.errors
+        assert app.open_sequence(str(seq)), app.state.errors
+        assert app.live.start("127.0.0.1:0"), app.state.errors
+        before = app.frames
+        for _ in range(8):
+            app.step()
+        assert app.frames == before + 8 and not app.should_close and not app.state.errors, app.state.errors
+        assert app.open_avatar("demo"), app.state.errors  # a view that never settles while it plays
+        demo_seq = tmp_path / "demo.npzseq"
+        rng = np.random.default_rng(0)
+        ExpressionSequence(rng.normal(0, 1, (5, app.avatar.code_dim)).astype(np.float32), 25.0, "d").save(demo_seq)
+        assert app.open_sequence(str(demo_seq)), app.state.errors
+        app.state.timeline.playing = app.state.timeline.loop = True
+
+        def stop() -> None:
+            fired.set()
+            app.request_close()
+
+        watchdog = threading.Timer(120.0, stop)  # a bound on the hang this test is about
+        watchdog.start()
+        try:
+            app.run(None, 5)
+        finally:
+            watchdog.cancel()
+        assert not fired.is_set(), "--quit-after-frames never ended the playing sequence"
+    finally:
+        app.close()

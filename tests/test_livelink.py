@@ -162,3 +162,19 @@ def test_decode_never_raises_other_errors():
     for _ in range(2000):
         with pytest.raises(PacketError):
             decode(rng.bytes(int(rng.integers(0, 400))))
+
+
+def test_a_clock_jump_re_anchors_the_stream():
+    """#36: one packet stamped 11 hours ahead (60 fps) made every later valid packet "late" until the clock caught
+    up: the stream froze. A jump (ahead by more than JUMP_S, or back by more than REORDER_S) re-anchors the clock
+    on the packet and restarts the smoothing; a packet slightly behind is still late."""
+    with LiveLinkReceiver(port=0, smoothing=(1.0, 0.5)) as rx:
+        assert rx.feed(pylivelinkface_packet(values(jawOpen=0.1), 1000))
+        assert rx.feed(pylivelinkface_packet(values(jawOpen=0.2), 1000 + 11 * 3600 * 60))  # 11 hours ahead
+        for k in range(1, 6):
+            assert rx.feed(pylivelinkface_packet(values(jawOpen=0.3 + 0.1 * k), 1000 + k))
+        assert rx.counters.late == 0 and rx.counters.jumps == 2 and rx.counters.received == 7
+        assert not rx.feed(pylivelinkface_packet(values(jawOpen=0.9), 1003))  # reordered: late
+        assert rx.counters.late == 1
+        w, t = rx.latest()
+        assert 1005 / 60 <= t < 1006 / 60

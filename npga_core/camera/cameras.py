@@ -242,6 +242,33 @@ def direction_vector(direction: str | tuple[float, float]) -> np.ndarray:
     return np.array([math.cos(el) * math.sin(az), math.sin(el), math.cos(el) * math.cos(az)])
 
 
+def framing(points: np.ndarray, width: int = DEFAULT_WIDTH, height: int = DEFAULT_HEIGHT, fov: float = 20.0,
+            direction: str | tuple[float, float] = "front", margin: float = 1.1,
+            robust: bool = True) -> tuple[np.ndarray, float]:
+    """(centre, distance) of the view that frames a point cloud along `direction` (see `frame_points`). Points
+    are taken within the position limit (+-MAX_POSITION: a cloud at 3e38 would put the eye on its target in
+    float64) and non-finite ones are ignored."""
+    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
+    if len(pts) == 0:  # an empty cloud (a valid avatar of 0 Gaussians): a head-sized box at the origin
+        pts = np.array([[-0.1, -0.1, -0.1], [0.1, 0.1, 0.1]])
+    pts = np.clip(pts[np.all(np.isfinite(pts), axis=1)], -MAX_POSITION, MAX_POSITION)
+    if len(pts) == 0:
+        raise ValueError("frame_points: no finite points to frame")
+    if robust and len(pts) >= 100:
+        lo, hi = np.percentile(pts, [0.5, 99.5], axis=0)
+    else:
+        lo, hi = pts.min(axis=0), pts.max(axis=0)
+    centre = 0.5 * (lo + hi)
+    extent = max(float(np.linalg.norm(hi - lo)), 1e-6)
+    axes = look_at(direction_vector(direction), np.zeros(3), (0.0, 1.0, 0.0), fov, width, height).rotation
+    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
+    rel = (corners - centre) @ axes.T  # camera axes: right, down, forward
+    tan_y = math.tan(math.radians(fov) / 2.0)
+    tan_x = tan_y * width / height
+    distance = np.max(np.maximum(margin * np.abs(rel[:, 0]) / tan_x, margin * np.abs(rel[:, 1]) / tan_y) - rel[:, 2])
+    return centre, max(float(distance), float(np.max(-rel[:, 2])) + 0.05 * extent)
+
+
 def frame_points(points: np.ndarray, width: int = DEFAULT_WIDTH, height: int = DEFAULT_HEIGHT,
                  fov: float = 20.0, direction: str | tuple[float, float] = "front", margin: float = 1.1,
                  robust: bool = True) -> Camera:
@@ -253,24 +280,6 @@ def frame_points(points: np.ndarray, width: int = DEFAULT_WIDTH, height: int = D
     "three_quarter_left/right", "left", "right", "top" or (azimuth, elevation) in degrees. Without any
     points, a 20 cm box at the origin is framed.
     """
-    pts = np.asarray(points, dtype=np.float64).reshape(-1, 3)
-    if len(pts) == 0:  # an empty cloud (a valid avatar of 0 Gaussians): a head-sized box at the origin
-        pts = np.array([[-0.1, -0.1, -0.1], [0.1, 0.1, 0.1]])
-    pts = pts[np.all(np.isfinite(pts), axis=1)]
-    if len(pts) == 0:
-        raise ValueError("frame_points: no finite points to frame")
-    if robust and len(pts) >= 100:
-        lo, hi = np.percentile(pts, [0.5, 99.5], axis=0)
-    else:
-        lo, hi = pts.min(axis=0), pts.max(axis=0)
-    centre = 0.5 * (lo + hi)
-    extent = max(float(np.linalg.norm(hi - lo)), 1e-6)
-    axes = look_at(centre + direction_vector(direction), centre, (0.0, 1.0, 0.0), fov, width, height).rotation
-    corners = np.array([[x, y, z] for x in (lo[0], hi[0]) for y in (lo[1], hi[1]) for z in (lo[2], hi[2])])
-    rel = (corners - centre) @ axes.T  # camera axes: right, down, forward
-    tan_y = math.tan(math.radians(fov) / 2.0)
-    tan_x = tan_y * width / height
-    distance = np.max(np.maximum(margin * np.abs(rel[:, 0]) / tan_x, margin * np.abs(rel[:, 1]) / tan_y) - rel[:, 2])
-    distance = max(float(distance), float(np.max(-rel[:, 2])) + 0.05 * extent)
+    centre, distance = framing(points, width, height, fov, direction, margin, robust)
     eye = centre + distance * direction_vector(direction)
     return look_at(eye, centre, (0.0, 1.0, 0.0), fov, width, height)

@@ -7,7 +7,7 @@ from dataclasses import asdict, dataclass, field
 
 import numpy as np
 
-from npga_core.camera.cameras import Camera, direction_vector, focal_from_fov, frame_points
+from npga_core.camera.cameras import MAX_POSITION, Camera, direction_vector, focal_from_fov, framing
 
 PRESETS = {"front": (0.0, 0.0), "three_quarter": (35.0, 5.0), "side": (90.0, 0.0), "back": (180.0, 0.0),
            "top": (0.0, 89.0)}
@@ -71,19 +71,18 @@ class OrbitCamera:
         self.roll = 0.0
 
     def frame(self, points: np.ndarray, aspect: float = 550 / 802) -> None:
-        """Centre on `points` and set the distance so they fill the view from the current direction."""
+        """Centre on `points` and set the distance so they fill the view from the current direction, within the
+        zoom's range of distances and with the eye within the position limit (a cloud at the limit is framed
+        as far as a camera may be, not refused)."""
         h = 802
         w = max(1, int(round(h * aspect)))
-        cam = frame_points(points, w, h, self.fov_y, (self.yaw, self.pitch))
-        eye = cam.camera_center
-        c2w = cam.camera_to_world
-        fwd = c2w[:3, 2]
-        # the framing camera looks at the box centre: recover it along its axis
-        pts = np.asarray(points, np.float64).reshape(-1, 3)
-        centre = 0.5 * (np.percentile(pts, 0.5, axis=0) + np.percentile(pts, 99.5, axis=0)) if len(pts) >= 100 \
-            else 0.5 * (pts.min(0) + pts.max(0))
+        centre, distance = framing(points, w, h, self.fov_y, (self.yaw, self.pitch))
+        self.distance = float(np.clip(distance, 1e-4, 1e4))
+        room = max(MAX_POSITION - self.distance, 0.0)
+        norm = float(np.linalg.norm(centre))
+        if norm > room:
+            centre = centre * (room / norm)
         self.target = [float(v) for v in centre]
-        self.distance = float(np.dot(centre - eye, fwd))
 
     def to_dict(self) -> dict:
         return asdict(self)

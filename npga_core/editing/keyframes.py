@@ -33,7 +33,7 @@ import numpy as np
 from scipy.spatial.transform import Rotation, Slerp
 
 from npga_core.camera.cameras import Camera
-from npga_core.errors import AvatarFileError
+from npga_core.errors import AvatarFileError, brief
 from npga_core.files.atomic import atomic_write
 from npga_core.files.untrusted import (
     MAX_CODE,
@@ -184,7 +184,7 @@ class KeyframeTimeline:
 
     def keys(self, track: str) -> list:
         if track not in TRACKS:
-            raise ValueError(f"unknown keyframe track {track!r}; choose from {', '.join(TRACKS)}")
+            raise ValueError(f"unknown keyframe track {brief(track)}; choose from {', '.join(TRACKS)}")
         return self.expression if track == "expression" else self.camera
 
     def update_key(self, track: str, index: int, **changes) -> int:
@@ -334,7 +334,7 @@ def _check_key(key: Key) -> None:
     if isinstance(key, ExpressionKey) and not np.all(np.abs(key.code) <= MAX_CODE):
         raise ValueError(f"code values must be finite within +-{MAX_CODE:g}")
     if isinstance(key, ExpressionKey) and key.interp not in INTERPOLATIONS:
-        raise ValueError(f"interp {key.interp!r} is not one of {', '.join(INTERPOLATIONS)}")
+        raise ValueError(f"interp {brief(key.interp)} is not one of {', '.join(INTERPOLATIONS)}")
 
 
 def _number(d: dict, name: str, where: str, default: float | None = None) -> float:
@@ -349,10 +349,10 @@ def _parse(data: object) -> KeyframeTimeline:
         raise ValueError("not an npga-view keyframe file (no 'npga_keyframes' version)")
     version = data["npga_keyframes"]
     if version != FORMAT_VERSION:
-        raise ValueError(f"keyframe format version {version!r} is not supported (expected {FORMAT_VERSION})")
+        raise ValueError(f"keyframe format version {brief(version)} is not supported (expected {FORMAT_VERSION})")
     code_dim = data.get("code_dim")
     if code_dim is not None and (isinstance(code_dim, bool) or not isinstance(code_dim, int) or code_dim < 1):
-        raise ValueError(f"code_dim must be a positive integer or null, got {code_dim!r}")
+        raise ValueError(f"code_dim must be a positive integer or null, got {brief(code_dim)}")
     tl = KeyframeTimeline(code_dim=code_dim)
     for track in TRACKS:
         items = data.get(track, [])

@@ -15,7 +15,11 @@ Images are PNG or JPEG regular files whose size is read from their headers befor
 
 from __future__ import annotations
 
+import os
 import re
+import sys
+import tempfile
+import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -26,7 +30,11 @@ from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError
 from npga_core.files.rig import load_rig
 from npga_core.files.sequences import ExpressionSequence
-from npga_core.files.untrusted import MAX_IMAGE_SIDE, open_regular, read_npz, real_floats
+from npga_core.files.untrusted import MAX_IMAGE_SIDE, check_pixels, open_regular, read_bytes, read_npz, real_floats
+
+_DECODE_LOCK = threading.Lock()  # one decode at a time owns descriptor 2
+#: Largest image file read (a 16384-pixel-a-side PNG of noise is ~800 MB; captures are far smaller)
+MAX_IMAGE_BYTES = 1 << 30
 
 DEFAULT_BUDGET_BYTES = 1 << 30
 #: GHA's `dataset.original_resolution` (config/config.py: "should match the intrinsic"): its preprocessing saves K
@@ -115,6 +123,7 @@ def image_size(path: Path) -> tuple[int, int]:
         raise AvatarFileError(path, "unreadable image (no image size in its header)")
     if max(size) > MAX_IMAGE_SIDE:
         raise AvatarFileError(path, f"image of {size[0]}x{size[1]} pixels, more than {MAX_IMAGE_SIDE} a side")
+    check_pixels(size[0], size[1], path)
     return size
 
 
@@ -141,15 +150,46 @@ def _jpeg_size(fh) -> tuple[int, int] | None:
     return None
 
 
-def read_image(path: Path, grey: bool = False) -> np.ndarray:
-    """Float32 [0, 1] RGB (H, W, 3), or (H, W) with `grey` (the first channel of a colour file)."""
+def _decode_quietly(data: bytes) -> tuple[np.ndarray | None, str]:
+    """cv2.imdecode of `data` with the process's stderr (descriptor 2) captured: libjpeg and libpng write their
+    warnings there ("Corrupt JPEG data: premature end of data segment") and still return an image; OpenCV's own
+    warnings are switched to errors only. Returns (image or None, what the decoders said)."""
     import cv2
-    image_size(path)  # before decoding: a regular PNG/JPEG file of a bounded size
-    try:
-        img = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
-    except cv2.error:
-        img = None
-    if img is None:
+
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    with _DECODE_LOCK, tempfile.TemporaryFile() as sink:
+        sys.stderr.flush()
+        saved = os.dup(2)
+        try:
+            os.dup2(sink.fileno(), 2)
+            try:
+                img = cv2.imdecode(np.frombuffer(data, np.uint8), cv2.IMREAD_UNCHANGED)
+            except cv2.error:
+                img = None
+        finally:
+            os.dup2(saved, 2)
+            os.close(saved)
+        sink.seek(0)
+        said = sink.read(4096).decode("utf-8", "replace").strip()
+    return img, said
+
+
+def read_image(path: Path, grey: bool = False) -> np.ndarray:
+    """Float32 [0, 1] RGB (H, W, 3), or (H, W) with `grey` (the first channel of a colour file).
+
+    The bytes are read through the untrusted-file gate and decoded from memory (OpenCV never sees the path: its
+    reader crashed on a name that is not UTF-8); a JPEG without its end marker (truncated: libjpeg would fill the
+    rest grey and only say so on stderr) or an image whose decoded size differs from its header is refused."""
+    size = image_size(path)  # before decoding: a regular PNG/JPEG file of a bounded size
+    data = read_bytes(path, MAX_IMAGE_BYTES, "an image")
+    if data[:2] == b"\xff\xd8" and b"\xff\xd9" not in data[-1024:]:  # entropy-coded data never holds FFD9
+        raise AvatarFileError(path, "unreadable image (a truncated JPEG: no end-of-image marker)")
+    if data[:4] == b"\x89PNG" and b"IEND" not in data[-64:]:
+        raise AvatarFileError(path, "unreadable image (a truncated PNG: no IEND chunk)")
+    img, said = _decode_quietly(data)
+    if said:  # libjpeg/libpng decoded what they could and said what was wrong on stderr: refused, not scored
+        raise AvatarFileError(path, f"corrupt image ({said.splitlines()[0][:120]})")
+    if img is None or img.shape[1::-1] != size:
         raise AvatarFileError(path, "unreadable image (not a PNG/JPEG OpenCV can decode)")
     scale = 65535.0 if img.dtype == np.uint16 else 255.0
     img = img.astype(np.float32) / scale

@@ -180,10 +180,12 @@ def _avatar_header(avatar: Avatar, provenance: dict) -> tuple[dict, dict[str, np
     return header, arrays
 
 
-def save_avatar(avatar: Avatar, path: str | Path, provenance: dict | None = None) -> None:
+def save_avatar(avatar: Avatar, path: str | Path, provenance: dict | None = None, verify: bool = False) -> None:
     """Write `avatar` to `path` atomically (temp file in the same folder, fsync, rename).
 
-    A crash at any point leaves either the old file or the complete new one.
+    A crash at any point leaves either the old file or the complete new one. With `verify` (imports of other
+    methods' avatars), the written file is read back by `read_avatar`, the reader every command opens it with,
+    before it takes `path`: a file its own reader refuses is never written (AvatarFileError naming `path`).
     """
     path = Path(path)
     prov = dict(avatar.provenance)
@@ -222,7 +224,15 @@ def save_avatar(avatar: Avatar, path: str | Path, provenance: dict | None = None
             pos = entry["offset"] + entry["nbytes"]
         fh.write(b"\0" * (offset - pos))
 
-    atomic_write(path, write)
+    def read_back(tmp: Path) -> None:
+        try:
+            read_avatar(tmp)
+        except AvatarFileError as e:
+            origin = f" (from {avatar.source})" if getattr(avatar, "source", "") else ""
+            raise AvatarFileError(path, f"not written: the .npga reader would refuse this avatar{origin}: "
+                                  f"{e.problem}") from None
+
+    atomic_write(path, write, verify=read_back if verify else None)
 
 
 # --------------------------------------------------------------------------------------------------
@@ -464,6 +474,10 @@ def _check_values(t: dict[str, np.ndarray], header: dict) -> None:
         zero = int(np.count_nonzero(nq < 1e-16))
         if zero:
             raise _Invalid(f"gaussians.quats has {zero} zero-length quaternion{'s' if zero > 1 else ''}")
+    m = t["gaussians.means"]
+    if m.size and np.abs(m).max() > MAX_POSITION:  # the limit the PLY reader and every other reader apply
+        raise _Invalid(f"gaussians.means reach {float(np.abs(m).max()):.3g}, beyond the +-{MAX_POSITION:g} they "
+                       "may have")
     ls = t["gaussians.log_scales"]
     if ls.size and np.abs(ls).max() > 80:
         raise _Invalid("gaussians.log_scales has values beyond +-80 (scale overflows float32)")

@@ -34,7 +34,7 @@ from pathlib import Path
 import numpy as np
 import torch
 
-from npga_core.errors import AvatarFileError
+from npga_core.errors import AvatarFileError, brief
 from npga_core.files.pose import similarity_pose
 from npga_core.files.sequences import DEFAULT_FPS, ExpressionSequence
 from npga_core.files.untrusted import (
@@ -42,6 +42,7 @@ from npga_core.files.untrusted import (
     MAX_POSITION,
     MAX_QUAT,
     bounded_floats,
+    is_folder,
     open_regular,
     read_bytes,
     read_npz,
@@ -80,7 +81,7 @@ CONDITION = {"dim": 6, "kind": "gha_head_pose",
 def is_gha_folder(path: str | Path) -> bool:
     """True when `path` is a folder holding GHA's `gaussianhead_latest`."""
     p = Path(path)
-    return p.is_dir() and (p / HEAD).exists()
+    return is_folder(p) and (p / HEAD).exists()
 
 
 def _check_archive(path: Path, size: int) -> None:
@@ -168,7 +169,7 @@ def read_config(path: Path) -> dict[str, float]:
         if key in module:
             v = module[key]
             if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or abs(v) > 1e6:
-                raise AvatarFileError(path, f"gaussianheadmodule.{key} = {v!r} is not a usable number")
+                raise AvatarFileError(path, f"gaussianheadmodule.{key} = {brief(v)} is not a usable number")
             out[key] = float(v)
     return out
 
@@ -248,7 +249,7 @@ def import_gha(folder: str | Path, config: str | Path | None = None, legacy_rota
     """The avatar of a GHA checkpoint folder (`gaussianhead_latest`, optional `supres_latest`); its expression
     space is the PCA of `sequence`'s coefficients when one is given, else the raw coefficients with unit std."""
     folder = Path(folder)
-    head_path = folder / HEAD if folder.is_dir() else folder
+    head_path = folder / HEAD if is_folder(folder) else folder
     state = load_state_dict(head_path, "a GHA gaussianhead checkpoint")
     xyz = _tensor(state, "xyz", (None, 3), head_path)
     n = xyz.shape[0]
@@ -316,8 +317,11 @@ def import_gha(folder: str | Path, config: str | Path | None = None, legacy_rota
         "exp_deform": ([pos, code], [Route("position", 0, 3, 0, d_s)], "expression", True),
         "pose_deform": ([pos, cond], [Route("position", 0, 3, 0, d_s)], "pose", True),
     }
-    nets = {name: _load_mlp(_network(dims[name], *plan[name], f_dim, exp_dim), state, f"{name}_mlp")
-            for name in NETWORKS}
+    try:  # what a network description cannot hold (hidden width 0, fewer than 3 colour channels, ...)
+        nets = {name: _load_mlp(_network(dims[name], *plan[name], f_dim, exp_dim), state, f"{name}_mlp")
+                for name in NETWORKS}
+    except (ValueError, RuntimeError) as e:
+        raise AvatarFileError(head_path, f"networks that an .npga cannot describe ({e})") from None
     note = (f"clamp((far - d2) / (far - near), 0, 1), d2 the squared distance to the nearest of the checkpoint's "
             f"{len(landmarks)} landmarks_3d_neutral (GHA generate(), knn_points), near {near}, far {far}")
     dynamics = Dynamics(networks=nets, rules={"rotation": "add_raw_legacy" if legacy_rotation else "add_raw"},

@@ -26,7 +26,7 @@ from npga_core.files.sequences import (
 )
 from npga_core.files.trackers import tracker_of
 from npga_core.files.tracking import load_mononphm_folder
-from npga_core.files.untrusted import npz_names, open_regular, read_npy, real_floats, regular_file
+from npga_core.files.untrusted import is_folder, npz_names, open_regular, read_npy, real_floats, regular_file
 from npga_core.model.avatar import Avatar
 from npga_core.model.blendshapes import BlendshapeBasis
 
@@ -46,7 +46,7 @@ def load_avatar(path: str | Path) -> Avatar:
                                   "`python -m npga_core.demo.build`)")
         path = DEMO_AVATAR
     p = Path(path)
-    if p.is_dir():
+    if is_folder(p):
         if is_gha_folder(p):
             return import_gha(p)
         raise AvatarFileError(p, "is a directory, not an avatar file (nor a Gaussian-Head-Avatar checkpoint "
@@ -80,7 +80,7 @@ def load_sequence(path: str | Path, fps: float | None = None,
     NeRSemble FLAME tracking / GaussianAvatars flame_param npz, with the head pose as that source defines it;
     ARKit takes (`.csv` Live Link Face, `.json`) through `basis` (a `BlendshapeBasis`; default the demo's)."""
     path = Path(path)
-    if path.is_dir():
+    if is_folder(path):
         seq = read_gha_params(path) if is_gha_params(path) else load_mononphm_folder(path)
     elif path.suffix == ".npy":
         codes = real_floats(read_npy(path, MAX_SEQUENCE_BYTES, "expression codes"), path, "expression codes")

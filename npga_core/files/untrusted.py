@@ -48,6 +48,9 @@ MAX_JSON_DEPTH = 64
 MAX_NPZ_MEMBERS = 256
 #: Largest image side accepted from a camera file (GL limits are checked again where targets are made).
 MAX_IMAGE_SIDE = 16384
+#: Most pixels of an image decoded, resized or allocated from a file's numbers (64 Mpx: 768 MB as float32 RGB);
+#: `check_pixels` before any allocation (a 1x16384 image covering 550x802 would be resized to 550x9 million).
+MAX_IMAGE_PIXELS = 1 << 26
 #: Longest integer literal accepted in JSON (digits).
 MAX_INT_DIGITS = 40
 #: Largest magnitude of a log-scale (as the `.npga` reader).
@@ -102,6 +105,15 @@ def regular_file(path: str | Path, what: str = "a file") -> Path:
     return p
 
 
+def is_folder(path: str | Path) -> bool:
+    """Whether `path` is a folder, False for any path the system cannot look at (a name too long, a file in the
+    way, no permission; pathlib's is_dir raises for some of those)."""
+    try:
+        return stat.S_ISDIR(os.stat(path).st_mode)
+    except (OSError, ValueError):
+        return False
+
+
 def open_regular(path: str | Path, what: str = "a file") -> IO[bytes]:
     """Open a regular file for binary reading without ever blocking on a FIFO; AvatarFileError otherwise.
 
@@ -140,12 +152,14 @@ def read_bytes(path: str | Path, max_bytes: int, what: str = "a file") -> bytes:
         size = file_size(fh)
         if size is not None and size > max_bytes:
             raise AvatarFileError(path, f"is {size} bytes, more than the {max_bytes} allowed for {what}")
-        try:
-            data = fh.read(max_bytes + 1)
+        try:  # what the file holds, plus one byte to see it grow (a read of the budget would allocate it all)
+            data = fh.read((max_bytes if size is None else min(size, max_bytes)) + 1)
         except OSError as e:
             raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None
     if len(data) > max_bytes:
         raise AvatarFileError(path, f"is more than the {max_bytes} bytes allowed for {what}")
+    if size is not None and len(data) != size:
+        raise AvatarFileError(path, f"changed while it was read ({size} bytes, then {len(data)})")
     return data
 
 
@@ -503,6 +517,13 @@ def json_int(value: Any, path: str | Path, what: str, lo: int = 0, hi: int = 2**
     if not lo <= value <= hi:
         raise AvatarFileError(path, f"{what} is {value}, outside [{lo}, {hi}]")
     return value
+
+
+def check_pixels(width: int, height: int, path: str | Path, what: str = "an image of") -> None:
+    """AvatarFileError naming `path` when WxH pixels exceed `MAX_IMAGE_PIXELS` (checked before an image is
+    decoded, resized or allocated)."""
+    if width * height > MAX_IMAGE_PIXELS:
+        raise AvatarFileError(path, f"{what} {width}x{height} pixels, more than the {MAX_IMAGE_PIXELS:,} allowed")
 
 
 def image_size(width: Any, height: Any, path: str | Path, max_side: int = MAX_IMAGE_SIDE) -> tuple[int, int]:

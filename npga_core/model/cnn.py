@@ -22,6 +22,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from npga_core.errors import brief
 from npga_core.model.networks import ACTIVATIONS, strict_float, strict_int, strict_str
 
 #: Bounds a header cannot exceed (a file claiming more is refused before anything is allocated or run).
@@ -104,7 +105,7 @@ class CNNConfig:
         if len(ops) > MAX_OPS:
             raise ValueError(f"CNN has {len(ops)} operations (at most {MAX_OPS})")
         if self.input not in ("rgb+latent", "latent"):
-            raise ValueError(f"CNN input {self.input!r} is not 'rgb+latent' or 'latent'")
+            raise ValueError(f"CNN input {brief(self.input)} is not 'rgb+latent' or 'latent'")
         channels = None
         for i, o in enumerate(ops):
             channels = _check_op(i, o, channels)
@@ -154,7 +155,7 @@ class CNNConfig:
         try:
             residual = d.get("residual", True)
             if not isinstance(residual, bool):
-                raise ValueError(f"residual must be true or false, got {residual!r}")
+                raise ValueError(f"residual must be true or false, got {brief(residual)}")
             if "ops" in d:
                 if not isinstance(d["ops"], list) or len(d["ops"]) > MAX_OPS:
                     raise ValueError(f"ops must be a list of at most {MAX_OPS} operations")
@@ -177,7 +178,7 @@ class CNNConfig:
 def _op(o: object) -> dict:
     """One checked operation of a version-2 CNN description."""
     if not isinstance(o, dict):
-        raise ValueError(f"a CNN operation must be an object, got {o!r}")
+        raise ValueError(f"a CNN operation must be an object, got {brief(o)}")
     kind = strict_str(o.get("op"), "op")
     if kind == "conv":
         bias = o.get("bias", True)
@@ -195,7 +196,7 @@ def _op(o: object) -> dict:
             raise ValueError("align_corners must be true or false")
         return {"op": "upsample", "factor": strict_int(o.get("factor"), "factor"),
                 "mode": strict_str(o.get("mode", "bilinear"), "mode"), "align_corners": aligned}
-    raise ValueError(f"unknown CNN operation {kind!r}")
+    raise ValueError(f"unknown CNN operation {brief(kind)}")
 
 
 class ScreenCNN(nn.Module):
@@ -304,7 +305,7 @@ def _check_op(i: int, o: dict, channels: int | None) -> int | None:
         return o["out"]
     if kind == "act":
         if o["name"] not in ACTIVATIONS:
-            raise ValueError(f"CNN layer {i} has unknown activation {o['name']!r}")
+            raise ValueError(f"CNN layer {i} has unknown activation {brief(o['name'])}")
     elif kind == "upsample":
         if not 2 <= o["factor"] <= MAX_UPSAMPLE or o.get("mode") not in ("bilinear", "nearest"):
             raise ValueError(f"CNN upsampling {i} must be bilinear or nearest by 2..{MAX_UPSAMPLE}")
@@ -312,5 +313,5 @@ def _check_op(i: int, o: dict, channels: int | None) -> int | None:
         if not 0.0 < o.get("eps", 1e-5) < 1.0:
             raise ValueError(f"CNN instance norm {i} eps outside (0, 1)")
     else:
-        raise ValueError(f"CNN operation {i} is {kind!r} (conv, act, instance_norm, upsample)")
+        raise ValueError(f"CNN operation {i} is {brief(kind)} (conv, act, instance_norm, upsample)")
     return channels

@@ -21,6 +21,7 @@ import numpy as np
 import torch
 from torch import nn
 
+from npga_core.errors import brief
 from npga_core.model.gaussians import GaussianCloud, PosedGaussians
 from npga_core.model.linear_rig import LinearRig
 from npga_core.model.networks import (
@@ -199,7 +200,7 @@ class Dynamics(nn.Module):
         self.rules.update(rules or {})
         for a, r in self.rules.items():
             if r not in RULES[a]:
-                raise ValueError(f"{a} rule {r!r} is not one of {', '.join(RULES[a])}")
+                raise ValueError(f"{a} rule {brief(r)} is not one of {', '.join(RULES[a])}")
         self.condition = condition
         self.blend_notes = dict(blend_notes or {})
         dims = {(n.config.code_dim, n.config.condition_dim, n.config.feature_dim) for n in networks.values()}
@@ -302,7 +303,7 @@ class Dynamics(nn.Module):
             if c.feature_dim != cloud.feature_dim:
                 raise ValueError(f"{key} expects {c.feature_dim} features, the cloud has {cloud.feature_dim}")
             if c.blend is not None and c.blend not in cloud.blend_names:
-                raise ValueError(f"{key} is blended by {c.blend!r}, which the cloud's blend weights lack")
+                raise ValueError(f"{key} is blended by {brief(c.blend)}, which the cloud's blend weights lack")
             for r in c.routes or []:
                 if r.to + r.width > widths[r.attribute]:
                     raise ValueError(f"{key} writes {r.attribute} columns {r.to}..{r.to + r.width}, the cloud has "

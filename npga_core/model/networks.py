@@ -21,25 +21,27 @@ from dataclasses import dataclass, field
 import torch
 from torch import nn
 
+from npga_core.errors import brief
+
 
 def strict_int(v: object, what: str) -> int:
     """`v` if it is a JSON integer (not a bool, float or string), else ValueError."""
     if isinstance(v, bool) or not isinstance(v, int):
-        raise ValueError(f"{what} must be an integer, got {v!r}")
+        raise ValueError(f"{what} must be an integer, got {brief(v)}")
     return v
 
 
 def strict_str(v: object, what: str) -> str:
     """`v` if it is a string, else ValueError."""
     if not isinstance(v, str):
-        raise ValueError(f"{what} must be a string, got {v!r}")
+        raise ValueError(f"{what} must be a string, got {brief(v)}")
     return v
 
 
 def strict_float(v: object, what: str, limit: float = 1e6) -> float:
     """`v` as a float if it is a finite JSON number within +-limit, else ValueError."""
     if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or abs(v) > limit:
-        raise ValueError(f"{what} must be a finite number within +-{limit:g}, got {v!r}")
+        raise ValueError(f"{what} must be a finite number within +-{limit:g}, got {brief(v)}")
     return float(v)
 
 
@@ -96,13 +98,13 @@ class InputSpec:
     @staticmethod
     def from_json(d: object) -> InputSpec:
         if not isinstance(d, dict):
-            raise ValueError(f"an input must be an object, got {d!r}")
+            raise ValueError(f"an input must be an object, got {brief(d)}")
         kind = strict_str(d.get("kind"), "input kind")
         if kind not in INPUT_KINDS:
-            raise ValueError(f"unknown input kind {kind!r} (known: {', '.join(INPUT_KINDS)})")
+            raise ValueError(f"unknown input kind {brief(kind)} (known: {', '.join(INPUT_KINDS)})")
         enc = strict_str(d.get("encoding", "none"), "encoding")
         if enc not in ENCODINGS:
-            raise ValueError(f"unknown encoding {enc!r} (known: {', '.join(ENCODINGS)})")
+            raise ValueError(f"unknown encoding {brief(enc)} (known: {', '.join(ENCODINGS)})")
         freqs = strict_int(d.get("freqs", 0), "freqs")
         if enc != "none" and kind not in ("position", "condition"):
             raise ValueError(f"a positional encoding applies to position and condition, not {kind}")
@@ -141,10 +143,10 @@ class Route:
     @staticmethod
     def from_json(d: object) -> Route:
         if not isinstance(d, dict):
-            raise ValueError(f"a route must be an object, got {d!r}")
+            raise ValueError(f"a route must be an object, got {brief(d)}")
         attr = strict_str(d.get("attribute"), "route attribute")
         if attr not in ATTRIBUTES:
-            raise ValueError(f"unknown attribute {attr!r} (known: {', '.join(ATTRIBUTES)})")
+            raise ValueError(f"unknown attribute {brief(attr)} (known: {', '.join(ATTRIBUTES)})")
         return Route(attr, strict_int(d.get("from"), "route from"), strict_int(d.get("width"), "route width"),
                      strict_int(d.get("to", 0), "route to"), strict_float(d.get("scale", 1.0), "route scale"))
 
@@ -268,9 +270,9 @@ class MLPConfig:
         if self.pos_freqs > MAX_POS_FREQS:
             raise ValueError(f"pos_freqs {self.pos_freqs} exceeds {MAX_POS_FREQS} (float32 sin/cos lose all meaning)")
         if self.activation not in ACTIVATIONS:
-            raise ValueError(f"unknown activation {self.activation!r} (known: {', '.join(ACTIVATIONS)})")
+            raise ValueError(f"unknown activation {brief(self.activation)} (known: {', '.join(ACTIVATIONS)})")
         if self.output_activation != "none" and self.output_activation not in ACTIVATIONS:
-            raise ValueError(f"unknown output activation {self.output_activation!r} (none or an activation)")
+            raise ValueError(f"unknown output activation {brief(self.output_activation)} (none or an activation)")
         if not 0.0 <= self.slope <= 1.0:
             raise ValueError(f"leaky ReLU slope {self.slope} outside 0..1")
         for s in self.skips:
@@ -288,11 +290,11 @@ class MLPConfig:
         seen = set()
         for name, width in self.outputs:
             if name not in ATTRIBUTES:
-                raise ValueError(f"unknown output block {name!r} (known: {', '.join(ATTRIBUTES)})")
+                raise ValueError(f"unknown output block {brief(name)} (known: {', '.join(ATTRIBUTES)})")
             if name in seen:
-                raise ValueError(f"output block {name!r} listed twice")
+                raise ValueError(f"output block {brief(name)} listed twice")
             if width < 1:
-                raise ValueError(f"output block {name!r} has width {width}")
+                raise ValueError(f"output block {brief(name)} has width {width}")
             seen.add(name)
         if not self.routes:
             raise ValueError("no output blocks")

@@ -48,6 +48,12 @@ _TAIL = struct.Struct("!ifiiB")  # frame, sub-frame, rate numerator, denominator
 _VALUES = struct.Struct(f"!{VALUES}f")
 MAX_SUBJECT = 256
 MAX_PACKET = 45 + MAX_SUBJECT + _TAIL.size + _VALUES.size
+#: A packet at most this many seconds behind the last one taken is late (reordered or repeated); one further
+#: behind or ahead (more than `JUMP_S`) means the sender's clock jumped (a stamp 11 hours ahead, a restart, a
+#: device switched): the clock re-anchors on it and the smoothing restarts, instead of calling every later
+#: packet late until the clock catches up.
+REORDER_S = 1.0
+JUMP_S = 2.0
 
 
 class PacketError(ValueError):
@@ -116,6 +122,7 @@ class Counters:
     late: int = 0  # well-formed but not newer than the last one taken (reordered or repeated)
     dropped: int = 0  # taken but replaced by a newer one before `latest()` saw it
     bad: int = 0  # malformed datagrams
+    jumps: int = 0  # packets whose time jumped by more than JUMP_S (or back by more than REORDER_S): re-anchored
 
 
 class LiveLinkReceiver:
@@ -179,12 +186,15 @@ class LiveLinkReceiver:
             return False
         with self._lock:
             t = p.timestamp
-            if self._last_t is not None and t <= self._last_t and self._last_t - t < 43200:
+            dt = t - self._last_t if self._last_t is not None else 0.0
+            if dt < -43200.0:  # past midnight
+                dt += 86400.0
+            if self._last_t is not None and -REORDER_S <= dt <= 0.0:
                 self.counters.late += 1
                 return False
-            dt = t - self._last_t if self._last_t is not None else 0.0
-            if dt < 0:  # past midnight
-                dt += 86400.0
+            if not 0.0 <= dt <= JUMP_S:  # the clock jumped: re-anchored here, the filter restarts (dt 0)
+                self.counters.jumps += 1
+                dt = 0.0
             self._last_t, self._fps = t, p.fps
             self.counters.received += 1
             if not self._seen:

@@ -23,7 +23,7 @@ from pathlib import Path
 import numpy as np
 
 from npga_core.camera.cameras import Camera
-from npga_core.errors import AvatarFileError
+from npga_core.errors import AvatarFileError, CommandError
 
 NPGA_SIZE = (550, 802)  # (width, height) of the paper's metrics
 #: NeRSemble's frontal camera, held out for evaluation in the paper: nersemble-benchmark's constants.py lists it
@@ -32,7 +32,7 @@ NPGA_SIZE = (550, 802)  # (width, height) of the paper's metrics
 NERSEMBLE_FRONTAL = "222200037"
 
 
-class EvaluateError(Exception):
+class EvaluateError(CommandError):
     """Bad arguments or inputs of `evaluate`, one line, exit code 2."""
 
 
@@ -53,15 +53,23 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--out", required=True, type=Path, help="report folder (created)")
 
 
-def _int_list(text: str) -> set[int]:
-    out: set[int] = set()
+def _frame_filter(text: str):
+    """--frames as a test of a frame number: A,B,C-D (ranges kept as bounds, never expanded: 0-3000000000 is two
+    numbers), each number within the frame limit every reader applies."""
+    from npga_core.files.untrusted import MAX_FRAMES
+
+    ranges: list[tuple[int, int]] = []
     try:
         for part in text.split(","):
             a, _, b = part.partition("-")
-            out.update(range(int(a), int(b) + 1) if b else [int(a)])
+            lo, hi = int(a), int(b) if b else int(a)
+            if not (0 <= lo <= hi <= 10 * MAX_FRAMES) or len(ranges) >= 10000:
+                raise ValueError
+            ranges.append((lo, hi))
     except ValueError:
-        raise EvaluateError(f"--frames {text!r}: expected numbers and ranges like 0,5,10-20") from None
-    return out
+        raise EvaluateError(f"--frames {text[:60]!r}: expected frame numbers 0..{10 * MAX_FRAMES} and ranges "
+                            "like 0,5,10-20") from None
+    return lambda f: any(lo <= f <= hi for lo, hi in ranges)
 
 
 @dataclass
@@ -74,12 +82,17 @@ class Row:
     masked: str
 
 
-def protocol_view(cam: Camera, image: np.ndarray, mask: np.ndarray | None, size=NPGA_SIZE):
-    """The paper's framing: scale so the image covers `size` (area filter), crop the centre; the camera alike."""
+def protocol_view(cam: Camera, image: np.ndarray, mask: np.ndarray | None, size=NPGA_SIZE, source: str | Path = ""):
+    """The paper's framing: scale so the image covers `size` (area filter), crop the centre; the camera alike.
+    AvatarFileError naming `source` when the scaled image would exceed the pixel budget every image has."""
     import cv2
+
+    from npga_core.files.untrusted import check_pixels
     w, h = size
     s = max(w / cam.width, h / cam.height)
     sw, sh = max(w, round(cam.width * s)), max(h, round(cam.height * s))
+    check_pixels(sw, sh, source, f"the protocol's {w}x{h} crop of this {cam.width}x{cam.height} image needs a resize "
+                 "to")
     x0, y0 = (sw - w) // 2, (sh - h) // 2
 
     def fit(a: np.ndarray) -> np.ndarray:
@@ -119,7 +132,8 @@ def run(args) -> int:
 def _choose_views(args, capture, problems: list[str], notes: list[str]) -> tuple[list[tuple], list, str]:
     """The (frame, camera) views to score, the frames, and the mask kind, as --frames, --cameras, --protocol and
     --mask say (problems and notes collected for the report)."""
-    frames = capture.frames if args.frames is None else sorted(set(capture.frames) & _int_list(args.frames))
+    wanted_frame = _frame_filter(args.frames) if args.frames is not None else None
+    frames = [f for f in capture.frames if wanted_frame is None or wanted_frame(f)]
     cameras = capture.cameras
     if args.cameras:
         wanted = [c.strip() for c in args.cameras.split(",") if c.strip()]
@@ -154,7 +168,11 @@ def _load_view(args, capture, v, mask_kind: str, problems: list[str]):
         return None
     cam, image, mask = loaded.camera, loaded.image, loaded.mask
     if args.protocol == "npga":
-        cam, image, mask = protocol_view(cam, image, mask)
+        try:
+            cam, image, mask = protocol_view(cam, image, mask, source=v.image_path)
+        except AvatarFileError as e:
+            problems.append(str(e))
+            return None
     return cam, image, mask
 
 
@@ -197,10 +215,12 @@ def _evaluate(args) -> int:
     lp = Lpips() if ok else None
     use_cnn = avatar.cnn is not None and not args.no_cnn
     notes.append("images through the avatar's CNN" if use_cnn else "splat images (no CNN)")
-    out: Path = args.out
-    out.mkdir(parents=True, exist_ok=True)
+    from npga_core.files.atomic import check_output, check_output_folder
+    out: Path = check_output_folder(args.out, "the report")
+    for name in ("metrics.csv", "summary.md", "metrics.png", "problems.txt"):  # before any view is rendered
+        check_output(out / name, "the report")
     if args.save_renders:
-        (out / "renders").mkdir(exist_ok=True)
+        check_output_folder(out / "renders", "the renders")
     try:
         ctx = create_headless_context()
         first = capture.views[views[0]].camera
@@ -210,6 +230,7 @@ def _evaluate(args) -> int:
     rows: list[Row] = []
     keep: list[tuple[float, int, str, np.ndarray, np.ndarray]] = []
     posed_frame = None
+    printed = 0
     t0 = time.perf_counter()
     for i, (f, c) in enumerate(views):
         loaded = _load_view(args, capture, capture.views[(f, c)], mask_kind, problems)
@@ -225,13 +246,16 @@ def _evaluate(args) -> int:
             posed_frame = f
         render = _render_view(renderer, avatar, cam, background, use_cnn, image.shape)
         if args.save_renders:
-            np.save(out / "renders" / f"{f}_{c}.npy", render.astype(np.float32))
+            _save_npy(out / "renders" / f"{f}_{c}.npy", render.astype(np.float32))
         s = score(render, image, mask, background, lp)
         rows.append(Row(f, c, s.psnr, s.ssim, s.lpips, mask_kind if s.masked else "none"))
         keep.append((s.psnr, f, c, image if mask is None else _comp(image, mask, background),
                      render if mask is None else _comp(render, mask, background)))
         keep = sorted(keep, key=lambda k: k[0])[:max(args.worst, 0)]
         _progress(i + 1, len(views), t0)
+        printed = i + 1
+    if printed < len(views):  # the line ends even when the last views were problems
+        _progress(len(views), len(views), t0)
     elapsed = time.perf_counter() - t0
     notes.append(f"{len(rows)} views in {elapsed:.1f} s ({elapsed / max(len(rows), 1) * 1e3:.0f} ms a view)")
     summary = write_report(out, rows, keep, problems, notes, protocol=args.protocol, avatar=str(args.avatar))
@@ -241,6 +265,11 @@ def _evaluate(args) -> int:
     if not rows:
         raise EvaluateError(f"{args.capture}: no view could be scored ({len(problems)} problems, see problems.txt)")
     return 0
+
+
+def _save_npy(path: Path, array: np.ndarray) -> None:
+    from npga_core.files.atomic import atomic_write
+    atomic_write(path, lambda fh: np.save(fh, array))
 
 
 def _comp(image: np.ndarray, mask: np.ndarray, background) -> np.ndarray:

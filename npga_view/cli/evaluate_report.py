@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import csv
+import io
 from pathlib import Path
 
 import numpy as np
 
 from npga_core.errors import shown
+from npga_core.files.atomic import atomic_write
 from npga_view.cli.render import write_image
 
 COLOURS = [(66, 135, 245), (245, 105, 66), (60, 180, 75), (200, 60, 200), (240, 200, 40), (40, 200, 200)]
@@ -25,13 +27,14 @@ def _mean(values: list) -> float | None:
 def write_report(out: Path, rows: list, worst: list, problems: list[str], notes: list[str],
                  protocol: str | None = None, avatar: str = "avatar") -> str:
     """Write the report files into `out`; returns the summary text (also summary.md)."""
-    with open(out / "metrics.csv", "w", newline="") as fh:
-        w = csv.writer(fh)
-        w.writerow(["frame", "camera", "psnr", "ssim", "lpips", "masked"])
-        for r in rows:
-            w.writerow([r.frame, r.camera, f"{r.psnr:.6f}", f"{r.ssim:.6f}",
-                        "" if r.lpips is None else f"{r.lpips:.6f}", r.masked])
-    (out / "problems.txt").write_text("".join(p + "\n" for p in problems))
+    table = io.StringIO(newline="")
+    w = csv.writer(table)
+    w.writerow(["frame", "camera", "psnr", "ssim", "lpips", "masked"])
+    for r in rows:
+        w.writerow([r.frame, shown(r.camera), f"{r.psnr:.6f}", f"{r.ssim:.6f}",
+                    "" if r.lpips is None else f"{r.lpips:.6f}", r.masked])
+    _text(out / "metrics.csv", table.getvalue())
+    _text(out / "problems.txt", "".join(shown(p) + "\n" for p in problems))
     lines = ["| camera | views | PSNR (dB) | SSIM | LPIPS |", "|---|---|---|---|---|"]
     for cam in sorted({r.camera for r in rows}):
         sel = [r for r in rows if r.camera == cam]
@@ -47,12 +50,18 @@ def write_report(out: Path, rows: list, worst: list, problems: list[str], notes:
                  "| Method | PSNR↑ | SSIM↑ | LPIPS↓ |", "|---|---|---|---|",
                  f"| {Path(avatar).name} | {_fmt(overall[0], 2)} | {_fmt(overall[1], 3)} | {_fmt(overall[2], 3)} |"]
     summary = "\n".join(text) + "\n"
-    (out / "summary.md").write_text(summary)
+    _text(out / "summary.md", summary)
     if rows:
         write_plot(out / "metrics.png", rows)
     for k, (_, f, c, image, render) in enumerate(worst):
         write_triplet(out, f"worst{k + 1}_frame{f}_cam{c}", image, render)
     return summary
+
+
+def _text(path: Path, text: str) -> None:
+    """UTF-8 text written through the output gate (atomic; a FIFO or folder in its place refused)."""
+    data = text.encode("utf-8", "backslashreplace")
+    atomic_write(path, lambda fh: fh.write(data))
 
 
 def _png(path: Path, rgb: np.ndarray) -> None:

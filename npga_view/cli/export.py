@@ -8,10 +8,11 @@ from pathlib import Path
 
 import numpy as np
 
+from npga_core.errors import CommandError
 from npga_core.posing.precision import PRECISION_HELP
 
 
-class ExportError(Exception):
+class ExportError(CommandError):
     """A problem with the arguments of `export`, reported as one line with exit code 2."""
 
 

@@ -27,12 +27,11 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 
 
 def run(args: argparse.Namespace) -> int:
+    from npga_core.files.atomic import check_output
     from npga_core.files.checkpoint import save_avatar
     from npga_core.files.gha import import_gha
 
-    out = Path(args.out)
-    if out.exists() and out.is_dir():
-        raise AvatarFileError(out, "is a folder; give the .npga file to write")
+    out = check_output(args.out, "the .npga file")  # before the import's work: a folder, FIFO, ... refused
     if args.kind == "lam":
         return _import_lam(args, out)
     from npga_core.files.loading import load_sequence
@@ -40,7 +39,7 @@ def run(args: argparse.Namespace) -> int:
     seq = load_sequence(args.sequence) if args.sequence else None
     avatar = import_gha(args.checkpoint, config=args.config, legacy_rotation=args.legacy_rotation, sequence=seq,
                         sequence_name=str(args.sequence or ""))
-    save_avatar(avatar, out)
+    save_avatar(avatar, out, verify=True)
     p = avatar.provenance
     g = p["groups"]
     print(f"{out}: {len(avatar):,} Gaussians ({g['near']:,} near, {g['blended']:,} blended, {g['far']:,} far), "
@@ -59,7 +58,7 @@ def _import_lam(args: argparse.Namespace, out: Path) -> int:
         if getattr(args, flag):
             raise AvatarFileError(args.checkpoint, f"--{flag} applies to gha imports, not to a LAM zip")
     avatar = read_lam_zip(args.checkpoint)
-    save_avatar(avatar, out)
+    save_avatar(avatar, out, verify=True)
     rig = avatar.rig
     assert rig is not None
     print(f"{out}: {len(avatar):,} Gaussians, {rig.describe()}; {rig.notes['weights']}")

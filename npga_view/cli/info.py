@@ -93,7 +93,7 @@ def summary(avatar: Avatar, path: str, load_s: float) -> str:
         text = ", ".join(f"{k}={shown(str(prov[k]))}" for k in keys if k in prov)
         if text:
             lines.append(f"  provenance: {text}")
-    return "\n".join(lines)
+    return "\n".join(shown(line) for line in lines)  # every line escaped: any name in a file may be hostile
 
 
 def _expression_lines(avatar: Avatar) -> list[str]:

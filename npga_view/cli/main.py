@@ -3,11 +3,15 @@
 from __future__ import annotations
 
 import argparse
+import contextlib
 import sys
 from collections.abc import Callable
 
 from npga_core import __version__
-from npga_core.errors import AvatarFileError
+from npga_core.errors import AvatarFileError, CommandError, shown
+
+#: Most distinct warnings a command prints (as one-line notes) when it succeeds.
+MAX_NOTES = 5
 
 # subcommand -> module with add_arguments(parser) and run(args) -> int
 SUBCOMMANDS: dict[str, tuple[str, str]] = {
@@ -80,9 +84,13 @@ def main(argv: list[str] | None = None) -> int:
     # SIGTERM/SIGHUP/SIGINT unwind like Ctrl+C (finally blocks close pose engines); the viewer installs its own
     # handlers that close the window first
     restore = signals.install()
+    notes: dict[str, None] = {}
     try:
-        return int(run(args) or 0)
-    except AvatarFileError as e:
+        with _warnings_as_notes(notes):
+            code = int(run(args) or 0)
+        _print_notes(notes)
+        return code
+    except (AvatarFileError, CommandError) as e:  # the one line: warnings met on the way are not printed
         print(f"npga-view: error: {e}", file=sys.stderr)
         return 2
     except (signals.Terminated, KeyboardInterrupt) as e:
@@ -97,6 +105,30 @@ def main(argv: list[str] | None = None) -> int:
         return 128 + signum
     finally:
         restore()
+
+
+@contextlib.contextmanager
+def _warnings_as_notes(notes: dict[str, None]):
+    """Python's and numpy's warnings (overflow in a cast, loadtxt's notices, a library's deprecations) collected
+    as one-line texts instead of printed as they come (two lines each, raw): a command that fails prints only its
+    error line; one that succeeds prints them after its output as notes, escaped, shortened, each once."""
+    import warnings
+
+    def collect(message, category, filename, lineno, file=None, line=None) -> None:
+        if len(notes) < 100:
+            notes[shown(str(message))[:200]] = None
+
+    with warnings.catch_warnings():
+        warnings.simplefilter("default")
+        warnings.showwarning = collect
+        yield
+
+
+def _print_notes(notes: dict[str, None]) -> None:
+    for text in list(notes)[:MAX_NOTES]:
+        print(f"npga-view: note: {text}", file=sys.stderr)
+    if len(notes) > MAX_NOTES:
+        print(f"npga-view: note: {len(notes) - MAX_NOTES} more notices", file=sys.stderr)
 
 
 if __name__ == "__main__":

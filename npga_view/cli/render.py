@@ -17,6 +17,7 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from npga_core.camera.cameras import DEFAULT_HEIGHT, DEFAULT_WIDTH, Camera, frame_points
+from npga_core.errors import CommandError
 from npga_core.posing.precision import PRECISION_HELP
 
 if TYPE_CHECKING:
@@ -31,7 +32,7 @@ _Vec3 = tuple[float, float, float]
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
 
-class RenderError(Exception):
+class RenderError(CommandError):
     """A problem with the arguments or inputs of `render`, reported as one line with exit code 2."""
 
 
@@ -499,6 +500,9 @@ def _check_output(args) -> str:
         raise RenderError("a single image from --sequence needs --frame K (or write a .mp4)")
     if not out.parent.is_dir():
         raise RenderError(f"--out {out}: folder {out.parent} does not exist")
+    from npga_core.files.atomic import check_output
+
+    check_output(out, "the render")  # before any work: a folder, FIFO or device in its place is refused
     return suffix
 
 
@@ -541,7 +545,9 @@ def _render(args) -> int:
     if suffix != ".mp4":
         image, picture = frames.render(None if codes is None else codes[0])
         if suffix == ".npy":
-            np.save(out, image.astype(np.float32))
+            from npga_core.files.atomic import atomic_write
+
+            atomic_write(out, lambda fh: np.save(fh, image.astype(np.float32)))
         else:
             _write_image(out, picture)
         if args.counts:

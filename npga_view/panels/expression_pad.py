@@ -9,6 +9,7 @@ import numpy as np
 from imgui_bundle import imgui
 
 from npga_core.posing.pad import CORNERS, blend
+from npga_view.imgui_glfw import drawable
 from npga_view.panels.info import AppInfo, remember
 from npga_view.state import ViewerState
 
@@ -139,7 +140,7 @@ class ExpressionPad:
             dl.add_line(imgui.ImVec2(p0.x, p0.y + t), imgui.ImVec2(p0.x + s, p0.y + t), light)
         text = imgui.get_color_u32((0.85, 0.85, 0.9, 1.0))
         for i, c in enumerate(self.corners):
-            name = label(c) if c else "?"
+            name = drawable(label(c)) if c else "?"  # draw-list text is not wrapped by imgui_glfw
             w = imgui.calc_text_size(name).x
             x = p0.x + 3 if i % 2 == 0 else p0.x + s - w - 3
             y = p0.y + 2 if i < 2 else p0.y + s - imgui.get_text_line_height() - 2
