@@ -81,11 +81,11 @@ def run(args: argparse.Namespace) -> int:
     if not (np.isfinite(result.basis.matrix).all() and np.isfinite(result.basis.offset).all()):
         raise AvatarFileError(args.take, "the fit gave non-finite values (raise --ridge)")
     if avatar is not None:
-        from npga_core.files.checkpoint import read_avatar, save_avatar
+        from npga_core.files.checkpoint import save_avatar
 
         avatar.blendshapes = result.basis
-        save_avatar(avatar, args.out, {"blendshapes_from": f"{args.take.name} + {args.codes.name}"})
-        read_avatar(args.out)  # what was written opens (the reader that will read it back)
+        # verify: the written file is read back by the reader that will open it before it takes the name
+        save_avatar(avatar, args.out, {"blendshapes_from": f"{args.take.name} + {args.codes.name}"}, verify=True)
     else:
         save_basis(result.basis, args.out)
     print(f"fitted {len(names)} shapes -> {codes.shape[1]}-D codes from {len(codes)} frames at {take.fps:g} fps: "
