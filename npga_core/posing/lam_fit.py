@@ -38,7 +38,7 @@ from npga_core.model.gaussians import SH_C0, logit
 from npga_core.posing.fastpose import FastPoser, posed_buffers
 
 #: Deltas smaller than this fraction of the head size per unit weight are dropped (sparser targets).
-DROP = 1e-5
+DROP = 1e-4
 #: The ridge, relative to the mean of the weights' Gram diagonal: shapes no frame moves get 0, shapes that always
 #: move together (left and right in a take) split their motion evenly instead of into large opposite deltas.
 RIDGE = 1e-4
