@@ -132,6 +132,37 @@ def test_deltas_are_stored_divided_by_the_player_scale(small) -> None:
         np.testing.assert_allclose(moved, ps.centres({name: 1.0}) - ps.centres({}), atol=2e-6)
 
 
+def test_any_rig_is_exported_exactly() -> None:
+    """A rig on the Gaussians themselves with ICT-style names (eyeBlink_L, browInnerUp split into halves), its own
+    runtime scales and bias, a basis with an offset, a rest transform (turn, scale, shift) and a head far from
+    LAM's: the export, at ARKit weights, draws the source's centres moved by the reported translation."""
+    from npga_core.model.dynamics import Dynamics
+    from npga_core.model.linear_rig import LinearRig
+    from npga_core.model.rotations import matrix_from_rotvec
+
+    rng = np.random.default_rng(4)
+    cloud = make_synthetic_avatar(400, with_f=False, with_g=False, sh_degree=0, seed=4).cloud
+    channels = ("eyeBlink_L", "eyeBlink_R", "jawOpen", "browInnerUp_L", "browInnerUp_R", "mouthClose", "notArkit")
+    support = np.sort(rng.choice(400, 250, replace=False))
+    m = np.eye(4)
+    m[:3, :3] = 1.3 * matrix_from_rotvec(np.array([0.2, -0.4, 0.1]))
+    m[:3, 3] = [0.3, -0.2, 0.1]
+    rig = LinearRig(channels, support, rng.normal(0, 3e-3, (7, 250, 3)), 400, scale=rng.uniform(0.5, 2, 7),
+                    bias=rng.normal(0, 0.2, 7), transform=m)
+    basis = BlendshapeBasis(channels, np.diag(rng.uniform(0.5, 1.5, 7)) + 0.1 * rng.normal(size=(7, 7)),
+                            rng.normal(0, 0.3, 7))
+    avatar = Avatar(cloud, Dynamics(networks={}, rig=rig), blendshapes=basis)
+    names = lam_fit.target_names(avatar)
+    web, shift = lam_fit.exact_web_avatar(avatar, names)
+    assert np.linalg.norm(shift) > 1.0  # moved to where the player looks
+    for seed in range(3):
+        w = random_weights(seed)
+        arkit = np.array([[w.get(n, 0.0) for n in names]])
+        ref = avatar.pose(lam_fit.frame_vectors(avatar, names, arkit)[0]).means
+        assert np.abs(web.centres(w) - shift - ref).max() <= 1e-5 * _size(ref)
+    assert "notArkit" in web.notes["export"]  # a channel no ARKit name drives is said to be left out
+
+
 def test_fitting_a_linear_rig_recovers_its_deltas(tmp_path) -> None:
     """The fit, run on an avatar that IS linear (a LAM rig), recovers the exact deltas from the generated
     frames (up to the small ridge's bias): its held-out error is under 1e-5 of the head size."""
