@@ -1,5 +1,5 @@
 """`npga-view export AVATAR --format lam-zip`: LAM web avatar zips that our reader and an independent re-derivation
-of LAM's player (`tests/test_lam_zip.Player`) read back as exported; exact for linear rigs, fitted (and measured)
+of LAM's player (`Player` in tests/test_lam_zip.py) read back as exported; exact for linear rigs, fitted (and measured)
 for neural avatars; hostile targets and avatars beyond the player's capacity refused in one line."""
 
 from __future__ import annotations
