@@ -306,10 +306,10 @@ def vertex_order(web: WebAvatar) -> bytes:
 # -- the zip ---------------------------------------------------------------------------------------------------
 LOST_NEURAL = ("the screen-space CNN (if the avatar has one); the networks' per-expression changes of rotation, "
                "scale, opacity and colour (held at the neutral expression); spherical harmonics above degree 0 "
-               "(the player draws the base colour only); the expression dynamics beyond a linear fit of the "
-               "centres (see fidelity)")
-LOST_EXACT = ("spherical harmonics above degree 0 (the player draws the base colour only); colours become 8-bit "
-              "in the player")
+               "(the player draws one colour per Gaussian: view-dependent colour is baked as seen from 1 m in "
+               "front of the face); the expression dynamics beyond a linear fit of the centres (see fidelity)")
+LOST_EXACT = ("spherical harmonics above degree 0 (the player draws one colour per Gaussian: view-dependent colour, "
+              "if any, is baked as seen from 1 m in front of the face); colours become 8-bit in the player")
 
 
 def readme_text(web: WebAvatar, source: str) -> str:

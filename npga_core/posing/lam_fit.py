@@ -14,7 +14,8 @@ match of ARKit's names to the avatar's blendshape basis (`match_names`), z its f
   solution of ``centre(w_t) - centre(0) ~ sum_j w_j s_j delta_j`` over them (a small ridge keeps shapes the
   frames never move at 0), deltas under `DROP` of the head size per unit weight dropped; the mesh vertex is the
   canonical centre and the offset the exact displacement at w = 0 (the neutral face is exact). Rotation, scale,
-  opacity and colour are the avatar's at w = 0; SH above degree 0 and a CNN are lost.
+  opacity and colour are the avatar's at w = 0; a CNN is lost; view-dependent colour (SH above degree 0) is baked
+  as seen from the front (`baked_rgb`): the player draws SH degree 0 only.
 
 `measure` compares the centres the player would draw (`WebAvatar.centres`) with the exact ones on held-out
 frames: RMS, p99 and max error in metres and as a fraction of the head size (the diagonal of the centres' box).
@@ -35,6 +36,7 @@ from npga_core.files.lam_export import LAM_HEAD_CENTRE, WebAvatar
 from npga_core.model.avatar import Avatar
 from npga_core.model.dynamics import Dynamics
 from npga_core.model.gaussians import SH_C0, logit
+from npga_core.model.sh import sh_basis
 from npga_core.posing.fastpose import FastPoser, posed_buffers
 
 #: Deltas smaller than this fraction of the head size per unit weight are dropped (sparser targets).
@@ -45,6 +47,8 @@ RIDGE = 1e-4
 #: Avatars whose centre lies farther than this (metres) from LAM's head centre are moved there.
 PLACE_WITHIN = 0.3
 GENERATED = "generated"
+#: View-dependent colour (SH above degree 0) is baked as seen from this far in front of the face (metres).
+BAKE_EYE = 1.0
 
 
 class FitError(ValueError):
@@ -109,8 +113,20 @@ def player_scales(names: tuple[str, ...]) -> np.ndarray:
     return np.array([PLAYER_SCALE.get(n, 1.0) for n in names], np.float64)
 
 
-def _rgb(sh_dc: np.ndarray) -> np.ndarray:
-    return np.clip(0.5 + SH_C0 * np.asarray(sh_dc, np.float64), 0.0, 1.0).astype(np.float32)
+def baked_rgb(sh: np.ndarray, centres: np.ndarray) -> np.ndarray:
+    """RGB in 0..1 (N, 3) the player can draw (it has SH degree 0): the colour seen from a frontal eye `BAKE_EYE`
+    metres in front of the head's box centre (+z, where faces look), view-dependent terms included; the DC
+    colour alone for SH degree 0."""
+    sh = np.asarray(sh, np.float64)
+    if sh.shape[1] == 1:
+        return np.clip(0.5 + SH_C0 * sh[:, 0], 0.0, 1.0).astype(np.float32)
+    c = np.asarray(centres, np.float64)
+    eye = (c.max(axis=0) + c.min(axis=0)) / 2.0 + np.array([0.0, 0.0, BAKE_EYE])
+    d = c - eye
+    d /= np.maximum(np.linalg.norm(d, axis=1, keepdims=True), 1e-12)
+    degree = int(round(np.sqrt(sh.shape[1]))) - 1
+    colour = np.einsum("nk,nkc->nc", sh_basis(d, degree), sh) + 0.5
+    return np.clip(colour, 0.0, 1.0).astype(np.float32)
 
 
 # -- exact -----------------------------------------------------------------------------------------------------
@@ -149,7 +165,7 @@ def exact_web_avatar(avatar: Avatar, names: tuple[str, ...]) -> tuple[WebAvatar,
         quats, log_scales = posed.quats, np.log(np.maximum(posed.scales, 1e-30))
     else:
         quats, log_scales = cloud.quats, cloud.log_scales
-    web = WebAvatar(vertices=vertices, offsets=offsets, rgb=_rgb(cloud.sh[:, 0]),
+    web = WebAvatar(vertices=vertices, offsets=offsets, rgb=baked_rgb(cloud.sh, means),
                     opacity_logits=cloud.opacity_logits, log_scales=log_scales, quats=quats, names=names,
                     deltas=deltas)
     unused = [c for c, used in zip(basis.names, np.any(match.matrix != 0, axis=1), strict=True) if not used]
@@ -225,7 +241,7 @@ def fit_web_avatar(avatar: Avatar, names: tuple[str, ...], train: Frames, centre
     full.pose_into(z0, posed)
     canonical = avatar.cloud.means.astype(np.float64)
     shift = placement(rest)
-    web = WebAvatar(vertices=canonical + shift, offsets=rest - canonical, rgb=_rgb(posed["sh"][:, 0]),
+    web = WebAvatar(vertices=canonical + shift, offsets=rest - canonical, rgb=baked_rgb(posed["sh"], rest),
                     opacity_logits=logit(posed["opacities"]), log_scales=np.log(np.maximum(posed["scales"], 1e-30)),
                     quats=posed["quats"], names=names, deltas=deltas)
     silent = [n for n, v in zip(names, np.abs(x).max(axis=0) if len(x) else zero, strict=True) if v < 0.05]
@@ -284,16 +300,16 @@ def plan_frames(takes: list[str], test_take: str | None, names: tuple[str, ...],
     generated = GENERATED in takes or not files
     test: Frames | None = None
     if test_take is not None:
-        test = Frames(_spread(take_weights(test_take, names), max_test), f"{test_take} (held out)")
+        test = Frames(_spread(take_weights(test_take, names), max_test), test_take)
     elif len(files) >= 2:
-        test = Frames(_spread(take_weights(files[-1], names), max_test), f"{files[-1]} (held out)")
+        test = Frames(_spread(take_weights(files[-1], names), max_test), files[-1])
         files = files[:-1]
     parts, labels = [], []
     for f in files:
         w = take_weights(f, names)
         if test is None and len(files) == 1 and not generated:
             cut = max(1, int(0.8 * len(w)))
-            test = Frames(_spread(w[cut:], max_test), f"{f} rows {cut}..{len(w) - 1} (its last 20%, held out)")
+            test = Frames(_spread(w[cut:], max_test), f"{f} rows {cut}..{len(w) - 1} (its last 20%)")
             w = w[:cut]
             labels.append(f"{f} rows 0..{cut - 1}")
         else:
@@ -307,7 +323,6 @@ def plan_frames(takes: list[str], test_take: str | None, names: tuple[str, ...],
         labels.append(g.label)
     if test is None:
         test = generated_frames(names, max_test, seed=1, units=False)
-        test.label += " (held out)"
     return Frames(np.concatenate(parts), "; ".join(labels)), test
 
 

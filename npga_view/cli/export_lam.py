@@ -93,7 +93,7 @@ def _report(avatar_name: str, web, shift: np.ndarray, info: dict | None, fid: di
 
 
 def fidelity_line(fid: dict) -> str:
-    return (f"held-out centre error over {fid['frames']} frames ({fid['frames_from']}): RMS "
+    return (f"held-out centre error over {fid['frames']} frames of {fid['frames_from']}: RMS "
             f"{fid['rms_m'] * 1e3:.4f} mm, p99 {fid['p99_m'] * 1e3:.4f} mm, max {fid['max_m'] * 1e3:.4f} mm "
             f"({fid['rms_of_head']:.2e} / {fid['p99_of_head']:.2e} of the head size {fid['head_size_m'] * 1e3:.0f} "
             f"mm; the exact centres move {fid['motion_rms_m'] * 1e3:.3f} mm RMS)")
