@@ -1,4 +1,5 @@
-"""`npga-view export AVATAR --out posed.ply`: the avatar posed at one expression as a standard 3DGS `.ply`."""
+"""`npga-view export AVATAR --out posed.ply`: the avatar posed at one expression as a standard 3DGS `.ply`;
+`--format lam-zip --out AVATAR.zip`: the avatar as a LAM web avatar (`export_lam.py`)."""
 
 from __future__ import annotations
 
@@ -18,7 +19,11 @@ class ExportError(CommandError):
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("avatar", help="a .npga checkpoint, a 3DGS .ply, or 'demo'")
-    p.add_argument("--out", required=True, type=Path, help="the .ply file to write")
+    p.add_argument("--out", required=True, type=Path, help="the .ply file to write (a .zip with --format lam-zip)")
+    p.add_argument("--format", choices=("ply", "lam-zip"), default="ply",
+                   help="ply: the posed Gaussians (default); lam-zip: a LAM-style web avatar that LAM's web player "
+                   "(gaussian-splat-renderer-for-lam) plays live from ARKit weights, exact for a LAM avatar, "
+                   "fitted for neural ones, with AVATAR.fidelity.json beside it")
     p.add_argument("--expr", help="expression code .npy, (D,) or (T, D) with --frame choosing the row (default row "
                    "0); or a named expression of the avatar ('jaw open'); or weights 'jawOpen=0.8,eyeBlinkLeft=1'")
     p.add_argument("--basis", type=Path, default=None,
@@ -31,6 +36,9 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
                    help="move the Gaussians by the --sequence frame's tracked head pose, relative to its first "
                    "frame or as tracked (into the tracking's world); SH turn with the head. Default off")
     p.add_argument("--precision", default="fp32", metavar="fp32|bf16|auto", help=PRECISION_HELP)
+    from npga_view.cli import export_lam
+
+    export_lam.add_arguments(p)
 
 
 def expression_code(args: argparse.Namespace, avatar) -> tuple[np.ndarray | None, np.ndarray | None]:
@@ -81,7 +89,14 @@ def run(args: argparse.Namespace) -> int:
     from npga_core.files.ply import save_posed_ply
     from npga_core.files.untrusted import finite_output
 
+    if getattr(args, "format", "ply") == "lam-zip":
+        from npga_view.cli import export_lam
+
+        return export_lam.run(args)
     out: Path = args.out
+    if getattr(args, "take", None) or getattr(args, "test_take", None):
+        print("npga-view export: error: --take and --test-take are for --format lam-zip", file=sys.stderr)
+        return 2
     try:
         if out.suffix.lower() != ".ply":
             raise ExportError(f"--out {out}: the output must be a .ply file")
