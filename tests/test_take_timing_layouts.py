@@ -170,3 +170,12 @@ def test_render_prints_notes_once_as_one_line_each(tmp_path):
     notes = [line for line in r.stderr.splitlines() if line.strip()]
     assert notes and all(line.startswith("npga-view: note: ") for line in notes), r.stderr
     assert "Warning" not in r.stderr and "loading.py" not in r.stderr
+
+
+def test_notes_escape_names_from_the_file(tmp_path):
+    p = tmp_path / "names.json"
+    _write(p, {"names": ["jawOpen", "evil\u202e\nname\u200b"], "values": [[0.5, 0.1]]})
+    seq = load_sequence(p, basis=BASIS)
+    assert len(seq.notes) == 1
+    note = seq.notes[0]
+    assert "\u202e" not in note and "\n" not in note and "\u200b" not in note and "evil" in note

@@ -480,8 +480,8 @@ def take_sequence(take: Take, basis: BlendshapeBasis, path: str | Path,
         seq.pose = head_pose(resample(take.times, take.head, rate))
         seq.pose_source = HEAD_POSE
     report = match.report()
-    if report:
-        seq.notes.append(f"{shown(path)}: {report}")
+    if report:  # (names from the file: escaped, never a raw bidi control, newline or lone surrogate)
+        seq.notes.append(shown(f"{path}: {report}"))
     if fps is None and n > len(take.times):
         seq.notes.append(f"{shown(path)}: {n - len(take.times)} of {n} frames at {rate:g} fps were not recorded "
                          "(interpolated from their neighbours)")
