@@ -35,10 +35,10 @@ def render(zip_path: Path, weights: dict[str, float], shot: dict, out: Path) -> 
 
     cam = out.with_suffix(".camera.json")
     cam.write_text(json.dumps(opencv_camera(shot, WIDTH, HEIGHT)))
-    expr = ",".join(f"{k}={v}" for k, v in weights.items())
+    expr = ",".join(f"{k}={v}" for k, v in (weights or {"jawOpen": 0.0}).items())  # all 0, not the mean code
     argv = ["render", str(zip_path), "--no-cnn", "--camera", str(cam), "--background", "1,1,1", "--no-legend",
-            "--out", str(out)]
-    assert main(argv + (["--expr", expr] if expr else [])) == 0
+            "--out", str(out), "--expr", expr]
+    assert main(argv) == 0
     return iio.imread(out)[..., :3]
 
 
