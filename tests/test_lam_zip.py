@@ -638,3 +638,12 @@ def test_npga_view_info_console(case: str, hostile: dict[str, Path], tmp_path: P
         assert re.search(r"gaussians:\s*300\b", r.stdout), r.stdout
     else:
         assert r.returncode == 2 and r.stderr.count("\n") == 1 and str(path) in r.stderr, r.stderr
+
+
+def test_info_says_when_the_player_could_not_load_the_zip(tmp_path: Path) -> None:
+    """A zip without animation.glb and vertex_order.json opens here, and the rig's notes (printed by `info`) say
+    that LAM's player needs them (it fails on vertex_order.json, and never draws without clips)."""
+    full = load_avatar(write_lam_zip(tmp_path / "full.zip", n=60))
+    assert full.rig is not None and "player" not in full.rig.notes
+    bare = load_avatar(write_lam_zip(tmp_path / "bare.zip", n=60, extras=False))
+    assert bare.rig is not None and "animation.glb and vertex_order.json" in bare.rig.notes["player"]

@@ -42,6 +42,9 @@ from npga_core.model.gaussians import GaussianCloud, rgb_to_sh0
 from npga_core.model.linear_rig import LinearRig
 
 ZIP_MAGIC = b"PK\x03\x04"
+#: Members LAM's player loads besides offset.ply and skin.glb (loadModel, 152345-152380): without them it fails
+#: (vertex_order.json: 'undefined is not valid JSON') or never draws (no animation clips); this reader needs neither.
+PLAYER_MEMBERS = ("animation.glb", "vertex_order.json")
 MAX_MEMBERS = 4096
 MAX_PLY_BYTES = 256 * 1024 * 1024
 MAX_GLB_BYTES = 1024 * 1024 * 1024
@@ -148,7 +151,8 @@ def read_skin(data: bytes) -> LamSkin:
     names, sparse = _morph_targets(arrays, mesh, prim, pos.shape[0])
     joints = list(skin.joints or [])
     head = _head_matrix(arrays, skin, joints)
-    has_hip = any(n_.name == "hip" for n_ in arrays.nodes)
+    # the player looks for a Bone named 'hip' (loadModel, 152318-152321): a joint of the skin, not any node
+    has_hip = any(isinstance(j, int) and 0 <= j < len(arrays.nodes) and arrays.nodes[j].name == "hip" for j in joints)
     return LamSkin(pos, names, sparse, head, len(joints), has_hip)
 
 
@@ -237,6 +241,9 @@ def lam_avatar(splats: GaussianCloud, skin: LamSkin, source: str, where: str, ex
                            "player capacity": f"{n * (len(order) + 1):,} of the {PLAYER_TEXELS:,} morph texels "
                                               "its player holds",
                            "not read": ", ".join(extras) or "nothing",
+                           **({"player": "LAM's player cannot load this zip: it also needs "
+                                         + " and ".join(m for m in PLAYER_MEMBERS if m not in extras)}
+                              if any(m not in extras for m in PLAYER_MEMBERS) else {}),
                            "skeleton": f"{skin.joints} joints; only 'head' moves the splats"
                                        + ("" if skin.has_hip else "; no 'hip' bone (LAM's player needs one)")})
     k = len(order)
