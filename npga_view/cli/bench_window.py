@@ -314,18 +314,23 @@ def run(gaussians: list[int], demo: bool, json_path: Path | None, moves: int = 6
     (each row's avatar says which); one table."""
     results: list[dict] = []
     lives: list[dict] = []
-    for load in ([0, beside_load] if beside_load > 0 else [0]):
-        hogs = start_load(load)
-        try:
-            r, lv = _measure_all(gaussians, demo, moves, seconds, precisions, avatars)
-        finally:
-            stop_load(hogs)
-        tag = f" (beside {load} busy)" if load else (" (idle)" if beside_load else "")
-        for row in r + lv:
-            row["avatar"] += tag
-            row["beside_load"] = load
-        results += r
-        lives += lv
+    proc = _start_xvfb()  # one display for every pass
+    try:
+        for load in ([0, beside_load] if beside_load > 0 else [0]):
+            hogs = start_load(load)
+            try:
+                r, lv = _measure_all(gaussians, demo, moves, seconds, precisions, avatars)
+            finally:
+                stop_load(hogs)
+            tag = f" (beside {load} busy)" if load else (" (idle)" if beside_load else "")
+            for row in r + lv:
+                row["avatar"] += tag
+                row["beside_load"] = load
+            results += r
+            lives += lv
+    finally:
+        if proc is not None:
+            proc.terminate()
     if json_path is not None:
         json_path.write_text(json.dumps(results + lives, indent=1))
     print(table(results))
@@ -343,28 +348,23 @@ def _measure_all(gaussians: list[int], demo: bool, moves: int, seconds: float,
     default drawing only, once per precision of the exact dynamics, alternating in the same run."""
     from npga_core.files.loading import DEMO_DIR
 
-    proc = _start_xvfb()
     results, lives = [], []
-    try:
-        with tempfile.TemporaryDirectory() as tmp:
-            cases = []
-            if demo:
-                demo_seq = DEMO_DIR / "sequences" / "talking.npzseq"
-                cases.append(("demo", str(demo_seq) if demo_seq.is_file() else None))
-            cases += [(str(a), None) for a in avatars]
-            cases += [_synthetic(n, Path(tmp)) for n in gaussians]
-            for avatar, seq in cases:
-                print(f"warm-up {avatar}: preview model {warm_up(avatar)}", flush=True)
-                modes = [(True, True, p) for p in precisions] if precisions else \
-                    [(True, True, "auto"), (True, False, "auto"), (False, False, "auto")]
-                for budget, lod, precision in modes:
-                    results.append(measure(avatar, seq, budget, moves, seconds, lod, precision))
-                    print(json.dumps(results[-1]), flush=True)
-            for avatar in (["demo"] if demo else []) + [str(a) for a in avatars]:  # #25: Live Link -> pixels
-                lives.append(measure_live_link(avatar, seconds=seconds))
-    finally:
-        if proc is not None:
-            proc.terminate()
+    with tempfile.TemporaryDirectory() as tmp:
+        cases = []
+        if demo:
+            demo_seq = DEMO_DIR / "sequences" / "talking.npzseq"
+            cases.append(("demo", str(demo_seq) if demo_seq.is_file() else None))
+        cases += [(str(a), None) for a in avatars]
+        cases += [_synthetic(n, Path(tmp)) for n in gaussians]
+        for avatar, seq in cases:
+            print(f"warm-up {avatar}: preview model {warm_up(avatar)}", flush=True)
+            modes = [(True, True, p) for p in precisions] if precisions else \
+                [(True, True, "auto"), (True, False, "auto"), (False, False, "auto")]
+            for budget, lod, precision in modes:
+                results.append(measure(avatar, seq, budget, moves, seconds, lod, precision))
+                print(json.dumps(results[-1]), flush=True)
+        for avatar in (["demo"] if demo else []) + [str(a) for a in avatars]:  # #25: Live Link -> pixels
+            lives.append(measure_live_link(avatar, seconds=seconds))
     return results, lives
 
 

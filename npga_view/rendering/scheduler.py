@@ -284,15 +284,19 @@ class DrawScheduler:
     def frame_budget(self, live: bool, merged: bool = False) -> float:
         """Milliseconds of drawing per UI frame: while the view changes, what keeps the UI at `target_fps` beside
         the UI's own time and the usual overshoot (the last slice, GL work queued by the window), at most
-        `budget_ms`, unless that leaves less than a quarter of it (the UI cannot reach that rate anyway: then the
-        whole budget); live images adapt their scale to what they are given (`_adapt`); while
+        `budget_ms`: for the full cloud's images at least a third of it (no cliff: a threshold flipped a LAM
+        stream between 32 and 20 UI fps as the UI's own time moved by a millisecond); for the merged cloud's the
+        whole budget when less than a quarter is left (the UI cannot reach that rate anyway: images/s matter
+        more then); live images adapt their scale to what they are given (`_adapt`); while
         nothing changes, a refinement may take as long as the rest of the UI frame (so that it gets at least half
         of the machine), never less than the budget and at most 4 times it."""
         if not live:
             return max(self.budget_ms, min(self.ui_ms, 4 * self.budget_ms))
         left = 1e3 / self.target_fps - self.ui_ms - self.over_ms
-        # (when the UI alone is too slow for that rate, the whole budget: images/s then matter more than UI fps)
-        self.live_budget_ms = min(self.budget_ms, left) if left >= self.budget_ms / 4 else self.budget_ms
+        if merged:  # (when the UI alone is too slow for that rate, the whole budget: images/s matter more then)
+            self.live_budget_ms = min(self.budget_ms, left) if left >= self.budget_ms / 4 else self.budget_ms
+        else:  # the full cloud's images: no cliff between a third of the budget and all of it
+            self.live_budget_ms = min(self.budget_ms, max(left, self.budget_ms / 3))
         return self.live_budget_ms
 
     def _start(self, camera: Camera, mode: str, image: _Image, now: float) -> None:
