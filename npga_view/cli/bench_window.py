@@ -331,6 +331,7 @@ def run(gaussians: list[int], demo: bool, json_path: Path | None, moves: int = 6
     finally:
         if proc is not None:
             proc.terminate()
+            proc.wait(timeout=10)
     if json_path is not None:
         json_path.write_text(json.dumps(results + lives, indent=1))
     print(table(results))
