@@ -44,7 +44,6 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
 def expression_code(args: argparse.Namespace, avatar) -> tuple[np.ndarray | None, np.ndarray | None]:
     """The code selected by --expr/--sequence/--frame (None: the avatar's mean code), the same rules as
     `npga-view render` for a single image, and the frame's head transform (4x4) with --head-pose."""
-    from npga_core.files.loading import load_sequence_for
     from npga_core.posing.headpose import head_transforms
 
     if args.sequence is not None and args.expr is not None:
@@ -60,20 +59,12 @@ def expression_code(args: argparse.Namespace, avatar) -> tuple[np.ndarray | None
         raise ExportError("--sequence needs --frame K to choose the expression")
     if avatar.code_dim == 0:
         raise ExportError(f"{source}: the avatar is static (no dynamics), it takes no expression codes")
-    if args.expr is not None:
-        from npga_view.cli.expr_arg import ExprError, named_code
+    from npga_view.cli.expr_arg import expr_code, load_with_notes
 
-        try:
-            named = named_code(str(args.expr), avatar)
-        except ExprError as e:
-            raise ExportError(str(e)) from None
-        if named is not None:
-            if args.frame is not None:
-                raise ExportError("--frame needs --sequence or an --expr file of several codes")
-            return named, None
-    seq = load_sequence_for(avatar, source)
-    for note in seq.notes:
-        print(f"npga-view: note: {note}", file=sys.stderr)
+    named = None if args.expr is None else expr_code(args.expr, avatar, args.frame, ExportError)
+    if named is not None:
+        return named, None
+    seq = load_with_notes(avatar, source)
     seq.check_dim(avatar.code_dim, source)
     frame = 0 if args.frame is None else args.frame
     if not 0 <= frame < len(seq):

@@ -16,6 +16,30 @@ class ExprError(ValueError):
     """An --expr text that names no expression or weights the avatar knows (one line)."""
 
 
+def expr_code(text: object, avatar, frame: int | None, error: type[Exception]) -> np.ndarray | None:
+    """`named_code` for a command's --expr (None: a file path), its problems raised as `error` (one line);
+    a named expression is one code, so --frame cannot choose among its rows."""
+    try:
+        named = named_code(str(text), avatar)
+    except ExprError as e:
+        raise error(str(e)) from None
+    if named is not None and frame is not None:
+        raise error("--frame needs --sequence or an --expr file of several codes")
+    return named
+
+
+def load_with_notes(avatar, source, fps: float | None = None):
+    """The sequence `source` for `avatar` (`load_sequence_for`), its reader's notes printed once each."""
+    import sys
+
+    from npga_core.files.loading import load_sequence_for
+
+    seq = load_sequence_for(avatar, source, fps)
+    for note in seq.notes:
+        print(f"npga-view: note: {note}", file=sys.stderr)
+    return seq
+
+
 def named_code(text: str, avatar) -> np.ndarray | None:
     """The code `text` names, or None when `text` is a file path (an existing file or one ending in .npy)."""
     if os.path.exists(text) or text.lower().endswith((".npy", ".npz", ".npzseq")):

@@ -166,7 +166,6 @@ def _camera(args, framing_points: np.ndarray) -> Camera:
 def _codes(args, avatar) -> tuple[np.ndarray | None, float, list[np.ndarray] | None]:
     """(T, D) codes to render (None: the mean code), the frame rate and, with --head-pose, each frame's head
     transform (4x4)."""
-    from npga_core.files.loading import load_sequence_for
     from npga_core.posing.headpose import head_transforms
 
     source = args.sequence or args.expr
@@ -180,21 +179,13 @@ def _codes(args, avatar) -> tuple[np.ndarray | None, float, list[np.ndarray] | N
         return None, 25.0, None
     if avatar.code_dim == 0:
         raise RenderError(f"{source}: the avatar is static (no dynamics), it takes no expression codes")
-    if args.expr is not None:
-        from npga_view.cli.expr_arg import ExprError, named_code
+    from npga_view.cli.expr_arg import expr_code, load_with_notes
 
-        try:
-            named = named_code(str(args.expr), avatar)
-        except ExprError as e:
-            raise RenderError(str(e)) from None
-        if named is not None:
-            if args.frame is not None:
-                raise RenderError("--frame needs --sequence or an --expr file of several codes")
-            return named[None], 25.0, None
-    seq = load_sequence_for(avatar, source, args.fps)
+    named = None if args.expr is None else expr_code(args.expr, avatar, args.frame, RenderError)
+    if named is not None:
+        return named[None], 25.0, None
+    seq = load_with_notes(avatar, source, args.fps)
     seq.check_dim(avatar.code_dim, source)
-    for note in seq.notes:
-        print(f"npga-view: note: {note}", file=sys.stderr)
     frames: range | list[int]
     codes, frames = seq.codes, range(len(seq))
     if args.frame is not None:
