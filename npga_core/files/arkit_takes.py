@@ -436,14 +436,20 @@ def resample(times: np.ndarray, values: np.ndarray, fps: float) -> np.ndarray:
     return np.stack([np.interp(grid, times, v[:, k]) for k in range(v.shape[1])], axis=1).reshape(n, v.shape[1])
 
 
-def resampled(take: Take, cols: list[int], path: str | Path, fps: float | None = None) -> np.ndarray:
-    """Columns `cols` of a take's weights on its frame grid (at `fps` or its own rate), within the frame and value
-    bounds a sequence of it has (`take_sequence`)."""
-    rate = take.fps if fps is None else float(fps)
+def grid_frames(take: Take, rate: float, width: int, path: str | Path) -> int:
+    """The frames `resample` fills for a take at `rate`, within the frame and value bounds every take has."""
     n = int(math.floor((take.times[-1] - take.times[0]) * rate + 0.5)) + 1
-    if n > MAX_FRAMES or n * max(len(cols), 1) > MAX_RESAMPLED_VALUES:
+    if n > MAX_FRAMES or n * max(width, 1) > MAX_RESAMPLED_VALUES:
         raise AvatarFileError(path, f"its times span {n} frames at {rate:g} fps ({len(take.times)} rows recorded), "
                               f"more than the {MAX_FRAMES} frames or {MAX_RESAMPLED_VALUES} values a take may fill")
+    return n
+
+
+def resampled(take: Take, cols: list[int], path: str | Path, fps: float | None = None) -> np.ndarray:
+    """Columns `cols` of a take's weights on its frame grid (at `fps` or its own rate), within `grid_frames`'s
+    bounds."""
+    rate = take.fps if fps is None else float(fps)
+    grid_frames(take, rate, len(cols), path)
     return resample(take.times, take.weights[:, cols], rate)
 
 
@@ -469,11 +475,7 @@ def take_sequence(take: Take, basis: BlendshapeBasis, path: str | Path,
     rate = take.fps if fps is None else float(fps)
     if not (math.isfinite(rate) and 0.01 <= rate <= 1000):
         raise AvatarFileError(path, f"--fps {rate:g} is outside 0.01..1000")
-    n = int(math.floor((take.times[-1] - take.times[0]) * rate + 0.5)) + 1  # the frames `resample` fills
-    if n > MAX_FRAMES or n * max(len(take.names), 1) > MAX_RESAMPLED_VALUES:
-        raise AvatarFileError(path, f"its times span {n} frames at {rate:g} fps ({len(take.times)} rows "
-                              f"recorded), more than the {MAX_FRAMES} frames or {MAX_RESAMPLED_VALUES} values "
-                              "a take may fill")
+    n = grid_frames(take, rate, len(take.names), path)
     w = resample(take.times, match.apply(take.weights), rate)
     seq = ExpressionSequence(basis.codes(w), rate, take.name or Path(path).stem)
     if take.head is not None:

@@ -87,7 +87,8 @@ class Avatar:
         condition part gets the neutral condition (zeros: Gaussian-Head-Avatar's head pose of a front view)."""
         z = np.asarray(z, dtype=np.float32).reshape(-1)
         if self.condition_dim and z.shape[0] == self.code_dim - self.condition_dim:
-            e = self.code_dim - self.condition_dim - (self.dynamics.rig_dim if self.dynamics is not None else 0)
+            assert self.dynamics is not None  # (a condition part comes with dynamics)
+            e = self.dynamics.expression_dim  # the rig's weights, if any, follow the condition
             z = np.concatenate([z[:e], np.zeros(self.condition_dim, np.float32), z[e:]])
         if z.shape[0] != self.code_dim:
             raise ValueError(f"expression code has {z.shape[0]} dims, the avatar expects {self.code_dim}")

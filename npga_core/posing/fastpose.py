@@ -101,6 +101,9 @@ class FastPoser:
         self.n = len(avatar)
         nets = dynamics.networks()
         self.rig = dynamics.rig
+        # the rig's rest transform of the centres (None: the identity), applied to every chunk by `apply_rows`
+        self._rig_move = None if self.rig is None or self.rig.identity_transform else \
+            torch.from_numpy(self.rig.transform.astype(np.float32)).to(self.device)
         self.layout = OffsetLayout.of(nets, rig=self.rig is not None)
         self.rules = dict(dynamics.rules)
         self.rotation_op = dynamics.rotation_op
@@ -526,8 +529,8 @@ class FastPoser:
         d = block("position")
         means = soa["means"][:, s:e]
         out["means"][s:e].copy_((means if d is None else ATTRIBUTE_OPS["position"].apply(means, d)).t())
-        if self.rig is not None and not self.rig.identity_transform:  # the centres only (`supported`)
-            m = torch.from_numpy(self.rig.transform.astype(np.float32)).to(out["means"].device)
+        if (m := self._rig_move) is not None:  # the centres only (`supported`)
+            m = m.to(out["means"].device)
             out["means"][s:e] = out["means"][s:e] @ m[:3, :3].t() + m[:3, 3]
         out["quats"][s:e].copy_(self._rotate(block("rotation"), s, e).t())
         log_s = soa["log_scales"][:, s:e]
