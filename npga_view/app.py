@@ -159,16 +159,16 @@ class ViewerApp:
         self._pending = None
         if frame is None:
             uploaded = highlight(posed, session)
-            if len(uploaded) == self.renderer.count > 0:
-                # uploaded when an image of the full cloud starts (`before_full_image`): poses arriving faster than
-                # images (a stream, playback; live images from the merged cloud) cost no upload each
-                self._pending = uploaded
-            else:
-                self.renderer.set_gaussians(uploaded)
-                self.renderer.clear_lines()
-        else:
+            self.renderer.clear_lines()
+        else:  # style, point size and lines now; the Gaussians as below
             uploaded = frame.posed = highlight(frame.posed, session)
-            self.renderer.show(frame)
+            self.renderer.show(frame, upload=False)
+        if len(uploaded) == self.renderer.count > 0:
+            # uploaded when an image of the full cloud starts (`before_full_image`): poses arriving faster than
+            # images (a stream, playback; live images from the merged cloud) cost no upload each
+            self._pending = uploaded
+        else:
+            self.renderer.set_gaussians(uploaded)
         self.content_version += 1
         self.lod.submit(self.content_version, uploaded)
 
@@ -179,7 +179,6 @@ class ViewerApp:
         if self._pending is not None and (force or not self.draws.drawing_full):
             pending, self._pending = self._pending, None
             self.renderer.set_gaussians(pending)
-            self.renderer.clear_lines()
 
     def reupload(self) -> None:
         """Upload the cloud on screen again (after a selection, hide or preview change)."""

@@ -54,7 +54,8 @@ class InspectionCache:
         frame = None
         if self.inspector is not None and len(posed) == len(self.inspector.avatar):
             try:
-                frame = self.inspector.frame(settings, posed, code, camera(), selection)
+                cam = camera() if Inspector.camera_dependent(settings) else None  # (only depth colours use it)
+                frame = self.inspector.frame(settings, posed, code, cam, selection)
             except ValueError as e:
                 self.figures = self.figures or InspectInfo()
                 self.figures.error = str(e)

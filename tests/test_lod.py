@@ -218,6 +218,26 @@ def test_merge_without_latent_and_wrong_count():
         level.merge(g.subset(np.arange(999)))
 
 
+def test_shifted_merge_follows_moved_centres():
+    """`Merge.shifted`: a cloud moved rigidly by a translation gives exactly the merge of the moved cloud; a small
+    smooth deformation moves each merged centre by its members' weighted mean move (checked against a plain
+    weighted mean with the merge's own weights o_i A_i), shapes and colours kept."""
+    g = random_cloud(4000, seed=11)
+    level = lod.LevelOfDetail(g.means, 256)
+    kept = level.merge_keeping(g)
+    t = np.array([0.1, -0.2, 0.05], np.float32)
+    moved = PosedGaussians(g.means + t, g.quats, g.scales, g.opacities, g.sh, g.latent)
+    np.testing.assert_allclose(kept.shifted(moved.means).means, level.merge(moved).means, atol=2e-6)
+    bent = g.means + 0.01 * np.sin(3.0 * g.means[:, [1, 2, 0]]).astype(np.float32)
+    shifted = kept.shifted(bent)
+    w = g.opacities * np.cbrt(np.prod(g.scales.astype(np.float64), axis=1)) ** 2
+    labels = level._labels
+    move = np.stack([np.bincount(labels, w * (bent - g.means)[:, k], level.clusters) for k in range(3)], 1)
+    move /= np.bincount(labels, w, level.clusters)[:, None]
+    np.testing.assert_allclose(shifted.means - kept.cloud.means, move, atol=1e-6)
+    assert shifted.scales is kept.cloud.scales and shifted.sh is kept.cloud.sh
+
+
 # --- what the person sees -----------------------------------------------------------------------------------
 def test_merged_demo_looks_like_full(ctx, tmp_path):
     from npga_core.camera.cameras import frame_points

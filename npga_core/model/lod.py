@@ -25,6 +25,8 @@ products with a sparse averaging matrix and a closed-form 3x3 eigen-decompositio
 
 from __future__ import annotations
 
+from dataclasses import dataclass, replace
+
 import numpy as np
 from scipy import sparse
 
@@ -137,6 +139,23 @@ def eigh3(c6: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     return np.stack([lam1, lam2, lam3], axis=1), np.stack([v1, v2, v3], axis=2)
 
 
+@dataclass
+class Merge:
+    """A merged cloud and what it was merged from: the members' centres and the averaging weights (clusters x N)."""
+
+    cloud: PosedGaussians
+    source_means: np.ndarray
+    weights: sparse.csr_matrix
+
+    def shifted(self, means: np.ndarray) -> PosedGaussians:
+        """The merged cloud of a pose of the same cloud whose centres are `means`, to first order: each merged
+        centre moves by the weighted mean of its members' moves (exact for a cluster that only translates);
+        shapes, opacities and colours stay those of this merge (about a millisecond for the demo: a live image
+        of a new pose need not wait for its merge)."""
+        moved = np.asarray(means, dtype=np.float32).reshape(self.source_means.shape) - self.source_means
+        return replace(self.cloud, means=(self.cloud.means + self.weights @ moved).astype(np.float32))
+
+
 def _area(scales: np.ndarray) -> np.ndarray:
     """(s_1 s_2 s_3)^(2/3): the area of the sphere of the same volume."""
     return np.cbrt(np.prod(scales, axis=1)) ** 2
@@ -170,6 +189,10 @@ class LevelOfDetail:
 
     def merge(self, posed: PosedGaussians) -> PosedGaussians:
         """One Gaussian per cluster of `posed` (which must have this grouping's count), moment-matched."""
+        return self.merge_keeping(posed).cloud
+
+    def merge_keeping(self, posed: PosedGaussians) -> Merge:
+        """`merge`, keeping what `Merge.shifted` needs to follow later poses cheaply."""
         if len(posed) != self.count:
             raise ValueError(f"the level of detail was built for {self.count} Gaussians, the cloud has {len(posed)}")
         scales = np.maximum(np.asarray(posed.scales, dtype=np.float64), 1e-12)
@@ -199,10 +222,11 @@ class LevelOfDetail:
         mean_of32 = mean_of.astype(np.float32)
         averaged = mean_of32 @ (np.concatenate(feats, axis=1) if len(feats) > 1 else feats[0])
         k = sh.shape[1] * 3
-        return PosedGaussians(
+        cloud = PosedGaussians(
             means=(ref + dm).astype(np.float32),
             quats=np.ascontiguousarray(quat_from_matrix(rot, proper=True), dtype=np.float32),
             scales=new_scales.astype(np.float32),
             opacities=np.minimum(np.minimum(covered, stacked), 0.99).astype(np.float32),
             sh=np.ascontiguousarray(averaged[:, :k].reshape(self.clusters, sh.shape[1], 3)),
             latent=None if posed.latent is None else np.ascontiguousarray(averaged[:, k:]))
+        return Merge(cloud, np.array(posed.means, dtype=np.float32), mean_of32)

@@ -260,9 +260,11 @@ class AuxiliaryPasses:
         value = int(np.frombuffer(data, np.uint32)[0])
         return value - 1 if value else None
 
-    def show(self, frame: InspectFrame) -> None:
-        """Upload an inspection frame (`Inspector.frame` in npga_core.inspection): Gaussians, style and lines."""
-        self.set_gaussians(frame.posed)
+    def show(self, frame: InspectFrame, upload: bool = True) -> None:
+        """Take an inspection frame (`Inspector.frame` in npga_core.inspection): style, lines and (unless the caller
+        uploads them itself) its Gaussians."""
+        if upload:
+            self.set_gaussians(frame.posed)
         self.style, self.point_px = frame.style, frame.point_px
         if frame.lines is None:
             self.clear_lines()

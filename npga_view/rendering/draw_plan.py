@@ -102,7 +102,8 @@ def plan(i: PlanInputs) -> Plan:
         # one on screen, labelled a preview (its sequence frame is the one counted as shown)
         source, want, exact = Source.MERGED_BEHIND, i.lod_scale, False
         draw = Target(i.target.camera_key, i.target.mode, i.merged_version)
-    stale = shown is None or shown.target != i.target or shown.exact_content != exact
+    stale = shown is None or shown.target != i.target or shown.exact_content != exact \
+        or (shown.merged and not i.live)  # (a merged cloud's image is never the final one, at any scale)
     # while live, a live image of this very target stays (the adapted scale moving a little is no reason to draw
     # it again: that only took the cores from the exact pose being computed)
     if shown is not None and not stale and not (shown.scale < want and not (i.live and shown.live)):

@@ -9,8 +9,11 @@ second renderer of the same path; once input stops the full-resolution image is 
 Every cloud the window shows is `submit`ted with its content version (kept, not merged yet). The scheduler
 asks for the merged cloud of a version with `request(version)`: it is uploaded if it has been merged, else its
 merge is queued (a newer request replaces one not yet started) for a daemon thread that merges while the UI
-goes on (numpy releases the GIL in the heavy parts). `pending(version)` says that one is on its way, so the
-scheduler can wait a moment for it instead of drawing the full cloud, and `uploaded_version` which merged pose
+goes on (numpy releases the GIL in the heavy parts). Until it is merged, a newer pose is shown by the last merge
+moved along (`Merge.shifted`: every merged centre by its members' mean move, about a millisecond), so a live image
+of a new pose (a stream's packet, a slider step) never waits for its merge. `pending(version)` says that one is
+on its way, so the scheduler can wait a moment for it instead of drawing the full cloud (before the first merge),
+and `uploaded_version` which merged pose
 the renderer holds (playback draws the newest one when poses come faster than merges). An orbit needs one
 merge for all its images.
 Clouds of fewer than `min_count` Gaussians are drawn in full (a merge would save little), as are inspection
@@ -24,7 +27,7 @@ import time
 from collections.abc import Callable
 
 from npga_core.model.gaussians import PosedGaussians
-from npga_core.model.lod import CLUSTERS, LevelOfDetail
+from npga_core.model.lod import CLUSTERS, LevelOfDetail, Merge
 from npga_view.rendering.renderer import SplatRenderer
 
 
@@ -44,8 +47,10 @@ class LiveDetail:
         self._latest: tuple[int, PosedGaussians] | None = None  # the newest cloud shown
         self._request: tuple[int, PosedGaussians] | None = None  # the cloud to merge next
         self._working = -1  # version being merged
-        self._done: tuple[int, PosedGaussians] | None = None  # newest merge, not uploaded yet
+        self._done: tuple[int, Merge] | None = None  # newest merge, not uploaded yet
+        self._base: Merge | None = None  # the newest merge taken (what newer poses are shifted from)
         self._uploaded = -1  # version in the renderer
+        self.shifted = False  # the renderer holds `Merge.shifted` of that version, not its merge
         self._grouping: LevelOfDetail | None = None
         self._generation = 0  # bumped by `reset`: a merge started before is thrown away
         self._stop = False
@@ -62,8 +67,9 @@ class LiveDetail:
         """The avatar changed: group its Gaussians anew with the next cloud."""
         with self._cond:
             self._grouping = None
-            self._request = self._done = self._latest = None
+            self._request = self._done = self._latest = self._base = None
             self._uploaded = -1
+            self.shifted = False
             self._generation += 1
 
     # ----------------------------------------------------------------------------------------- output
@@ -84,20 +90,31 @@ class LiveDetail:
         with self._cond:
             done, self._done = self._done, None
             latest = self._latest
-            started = {self._uploaded, self._working, done[0] if done is not None else -1,
+            started = {self._working, done[0] if done is not None else -1,
                        self._request[0] if self._request is not None else -1}
+            if not self.shifted:
+                started.add(self._uploaded)
             if latest is not None and latest[0] == version and version not in started:
                 self._request = latest
                 self._cond.notify()
         if done is not None:
-            if self.renderer is None:
-                self.renderer = self._make_renderer()
-            self.renderer.set_gaussians(done[1])
-            self._uploaded = done[0]
+            self._base = done[1]
+            if done[0] >= self._uploaded:  # (not over a shift of a newer pose)
+                self._upload(done[0], done[1].cloud, shifted=False)
+        base = self._base
+        if self._uploaded != version and latest is not None and latest[0] == version and base is not None \
+                and len(latest[1]) == len(base.source_means):
+            self._upload(version, base.shifted(latest[1].means), shifted=True)
         if self._request is not None and self._thread is None:
             self._thread = threading.Thread(target=self._run, name="npga-live-detail", daemon=True)
             self._thread.start()
         return self.renderer if self._uploaded == version and self.renderer is not None else None
+
+    def _upload(self, version: int, cloud: PosedGaussians, shifted: bool) -> None:
+        if self.renderer is None:
+            self.renderer = self._make_renderer()
+        self.renderer.set_gaussians(cloud)
+        self._uploaded, self.shifted = version, shifted
 
     @property
     def uploaded_version(self) -> int:
@@ -138,7 +155,7 @@ class LiveDetail:
             try:
                 if grouping is None or grouping.count != len(posed):
                     grouping = LevelOfDetail(posed.means, self.clusters)
-                merged = grouping.merge(posed)
+                merged = grouping.merge_keeping(posed)
             except Exception as e:  # noqa: BLE001 (a thread that died would leave the view waiting for it)
                 with self._cond:
                     self.error, self._working = f"level of detail: {e}", -1

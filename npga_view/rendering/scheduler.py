@@ -125,7 +125,7 @@ class DrawScheduler:
         """"preview" (reduced resolution or a preview pose), "refining" (a full-resolution image of the
         current view is being drawn) or "exact" (the full-resolution image of the exact pose is on screen)."""
         shown, job = self._shown, self._job
-        if shown is not None and shown.target == self._target and shown.scale >= 1.0:
+        if shown is not None and shown.target == self._target and self._final(shown):
             return "exact" if shown.exact_content else "preview"
         if job is not None and job.target == self._target and job.scale >= 1.0:
             return "refining"
@@ -145,7 +145,11 @@ class DrawScheduler:
     def settled(self) -> bool:
         """The current view is on screen at full resolution and nothing is being drawn."""
         shown = self._shown
-        return self._job is None and shown is not None and shown.target == self._target and shown.scale >= 1.0
+        return self._job is None and shown is not None and shown.target == self._target and self._final(shown)
+
+    def _final(self, image: _Image) -> bool:
+        """A full-resolution image of every Gaussian (a merged cloud's image is not, at any scale)."""
+        return image.scale >= 1.0 and image.renderer is self.renderer
 
     @property
     def idle(self) -> bool:
@@ -154,7 +158,7 @@ class DrawScheduler:
         full-resolution one)."""
         shown = self._shown
         return (self._job is None and shown is not None and shown.target == self._target
-                and (shown.scale >= 1.0 or self._live))
+                and (self._final(shown) or self._live))
 
     @property
     def drawing_full(self) -> bool:
