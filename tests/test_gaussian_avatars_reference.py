@@ -67,8 +67,8 @@ def _their_deps() -> str | None:
         return "NPGA_GA_SOURCE is not set (a copy of ShenhanQian/GaussianAvatars)"
     if not (Path(SOURCE) / "scene" / "flame_gaussian_model.py").is_file():
         return f"NPGA_GA_SOURCE={SOURCE} holds no scene/flame_gaussian_model.py"
-    probe = subprocess.run([sys.executable, "-c", "import roma, plyfile, iopath, tqdm, PIL"], env=_env(Path("/nonexistent")),
-                           capture_output=True)
+    probe = subprocess.run([sys.executable, "-c", "import roma, plyfile, iopath, tqdm, PIL"],
+                           env=_env(Path("/nonexistent")), capture_output=True)
     return None if probe.returncode == 0 else "roma, plyfile, iopath, tqdm or PIL not importable (see NPGA_GA_DEPS)"
 
 

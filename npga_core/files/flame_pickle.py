@@ -165,7 +165,7 @@ def _dense(state: Any, key: str) -> np.ndarray:
         raise ValueError(f"{key} has no valid sparse shape")
     if not all(isinstance(p, np.ndarray) and p.ndim == 1 for p in parts):
         raise ValueError(f"{key} is a sparse matrix without its arrays")
-    data, indices, indptr = parts
+    data, indices, indptr = (np.asarray(p) for p in parts)
     if indices.dtype.kind not in "iu" or indptr.dtype.kind not in "iu" or len(indptr) != shape[1] + 1 \
             or len(data) != len(indices) or (len(indices) and (indices.min() < 0 or indices.max() >= shape[0])) \
             or indptr[0] != 0 or indptr[-1] != len(data) or np.any(np.diff(indptr) < 0):

@@ -84,6 +84,11 @@ class LinearRig:
                 raise ValueError(f"rig {name} has NaN/Inf values")
         if self.vertices is not None and not np.isfinite(self.vertices).all():
             raise ValueError("rig vertices have NaN/Inf values")
+        self._check_skin()
+
+    def _check_skin(self) -> None:
+        """ValueError unless a skin comes exactly with carrier "triangle" and fits the rig."""
+        k = self.n_channels
         if (self.carrier == "triangle") != (self.skin is not None):
             raise ValueError("a skin goes with carrier 'triangle' and only with it")
         if self.skin is not None:

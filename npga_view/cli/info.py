@@ -13,6 +13,8 @@ from npga_core.model.avatar import Avatar
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("path", help="a .npga checkpoint, a 3DGS .ply, or 'demo'")
+    p.add_argument("--flame-model", default=None, help="your FLAME model pickle: opens a GaussianAvatars output "
+                   "folder (or its point_cloud.ply) as the avatar")
 
 
 def _mlp_lines(key: str, net) -> list[str]:
@@ -164,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
         print(take_summary(args.path))
         return 0
     t0 = time.perf_counter()
-    avatar = load_avatar(args.path)
+    avatar = load_avatar(args.path, args.flame_model)
     dt = time.perf_counter() - t0
     print(summary(avatar, avatar.source or args.path, dt))
     from npga_view.rendering.factory import headless_path_line
