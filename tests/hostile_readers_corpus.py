@@ -501,3 +501,37 @@ def while_shrinking(target: str, argv_json: str) -> int:
         if getattr(module, "__name__", "").startswith("npga_") and getattr(module, "open_regular", None) is original:
             module.open_regular = shrinking_open
     return main(json.loads(argv_json))
+
+
+# == #37 FLAME model pickles (`import gaussian-avatars --flame-model`, `--flame-model` wherever an avatar opens) ==
+_RUNSTRING_IN_CH = (b"(dp0\nS'shapedirs'\np1\nccopy_reg\n_reconstructor\np2\n(cchumpy.ch\nCh\np3\nc__builtin__\n"
+                    b"object\np4\nNtp5\nRp6\n(dp7\nS'x'\np8\ncnumpy.testing._private.utils\nrunstring\np9\n"
+                    b"(S\"open('PWNED', 'w').write('x')\"\np10\n(dp11\ntp12\nRp13\nsbs.")
+
+
+class _System:
+    def __reduce__(self):
+        return (os.system, ("touch PWNED",))
+
+
+def flame_pickles(folder: Path, arrays: dict) -> dict[str, Path]:
+    """FLAME pickles that must be refused in one line, nothing run: payloads (os.system; numpy's runstring inside a
+    chumpy object, protocol 0 as Python 2 wrote FLAME 2020), wrong shapes, not a dict, truncated."""
+    folder.mkdir(parents=True, exist_ok=True)
+    narrow = dict(arrays, shapedirs=arrays["shapedirs"][:, :, :50])
+    bad_weights = dict(arrays, weights=arrays["weights"][:, :3])
+    cases = {
+        "os.system payload": pickle.dumps({"v_template": _System()}, protocol=2),
+        "runstring inside a chumpy object": _RUNSTRING_IN_CH,
+        "shapedirs of 50 components": pickle.dumps(narrow, protocol=2),
+        "weights for 3 joints": pickle.dumps(bad_weights, protocol=2),
+        "a list, not a dict": pickle.dumps([1, 2, 3], protocol=2),
+        "truncated": pickle.dumps(arrays, protocol=2)[:5000],
+        "empty": b"",
+    }
+    out = {}
+    for name, data in cases.items():
+        path = folder / (name.replace(" ", "_").replace(",", "") + ".pkl")
+        path.write_bytes(data)
+        out[name] = path
+    return out

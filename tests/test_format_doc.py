@@ -197,14 +197,14 @@ def test_blendshape_section_matches_the_code(tmp_path):
     path = tmp_path / "bs.npga"
     save_avatar(avatar, path)
     header = read_header(path)[0]
-    assert header["format_version"] == 3 and FORMAT_VERSION == 4
+    assert header["format_version"] == 3 and FORMAT_VERSION == 5
     section = _section(BLENDSHAPES_HEADING)
     rows = dict(re.findall(r"^\|\s*`(blendshapes\.[^`]+)`\s*\|[^|]*\|\s*(\w+)\s*\|", section, re.M))
     implied = {n: dt for n, (dt, _) in expected_tensors(header).items() if n.startswith("blendshapes.")}
     assert rows == implied
     keys = set(re.findall(r"^\|\s*`(\w+)`\s*\|", section.split("### `blendshapes`")[1].split("| name |")[0], re.M))
     assert keys == set(header["blendshapes"])
-    assert "currently > 4" in _section("## 8. Validation: what the reader rejects")
+    assert "currently > 5" in _section("## 8. Validation: what the reader rejects")
 
 
 RIG_HEADING = "## 17. Format version 4: a linear blendshape rig"

@@ -45,7 +45,7 @@ from npga_core.model.gaussians import GaussianCloud, sh_coeff_count
 
 MAGIC = b"\x89NPGA\r\n\x1a"
 #: The newest version this code reads and writes; a file is written in the oldest version that holds it.
-FORMAT_VERSION = 4
+FORMAT_VERSION = 5
 ALIGN = 64
 MAX_HEADER_BYTES = 64 * 1024 * 1024
 MAX_PARAMETER = 1e8  # largest magnitude of a network weight, input normalisation or expression value
@@ -109,9 +109,9 @@ def expected_tensors(header: dict) -> Spec:
 
 def format_version_for(avatar: Avatar) -> int:
     """The oldest format version that holds `avatar` (1 for NPGA's F and G, 2 for any other dynamics, 3 with a
-    blendshape basis, 4 with a rig)."""
+    blendshape basis, 4 with a rig, 5 with a rig on a skinned mesh)."""
     if avatar.rig is not None:
-        return rig_field.RIG_VERSION
+        return rig_field.RIG_VERSION if avatar.rig.skin is None else rig_field.SKIN_VERSION
     if avatar.blendshapes is not None:
         return blendshapes_field.BLENDSHAPES_VERSION
     simple = (avatar.dynamics is None or avatar.dynamics.simple) and (avatar.cnn is None or avatar.cnn.config.simple)
@@ -280,7 +280,7 @@ def _read_header(path: Path) -> tuple[dict, int]:
     rig = rig_field.header_entry(header)
     if rig is not None:
         try:
-            rig_field.check_section(rig, header["gaussians"]["count"])
+            rig_field.check_section(rig, header["gaussians"]["count"], header["format_version"])
         except ValueError as e:
             raise _Invalid(str(e)) from None
     data_start = 16 + hlen
@@ -526,6 +526,8 @@ def _build_avatar(path: Path, header: dict, t: dict[str, np.ndarray]) -> Avatar:
             raise _Invalid(f"rig: {e}") from None
         if dynamics is None:
             dynamics = Dynamics(networks={}, rig=rig)
+        elif rig.skin is not None:
+            raise _Invalid("rig: a rig on a skinned mesh poses its avatar alone (the file also has dynamics)")
         else:
             dynamics.rig = rig
     cnn = None

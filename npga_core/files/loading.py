@@ -13,6 +13,7 @@ from pathlib import Path
 from npga_core.errors import AvatarFileError
 from npga_core.files.arkit_takes import TAKE_SUFFIXES, read_take_sequence
 from npga_core.files.checkpoint import MAGIC, read_avatar
+from npga_core.files.gaussian_avatars import flame_sequence, import_gaussian_avatars, is_ga_folder
 from npga_core.files.gha import import_gha, is_gha_folder, is_gha_params, read_gha_params
 from npga_core.files.lam import is_zip, read_lam_zip
 from npga_core.files.places import bundled_path
@@ -35,11 +36,14 @@ DEMO_DIR = bundled_path("demo")
 DEMO_AVATAR = DEMO_DIR / "avatar.npga"
 
 
-def load_avatar(path: str | Path) -> Avatar:
+def load_avatar(path: str | Path, flame_model: str | Path | None = None) -> Avatar:
     """Open a `.npga` checkpoint, a 3DGS `.ply`, a LAM avatar zip, or "demo"; raises AvatarFileError on bad input.
+    With `flame_model` (the user's FLAME pickle) a GaussianAvatars output folder or point_cloud.ply.
 
     The type is decided by the file's first bytes, not its name.
     """
+    if flame_model is not None:
+        return import_gaussian_avatars(path, flame_model)
     if str(path) == "demo":
         if not DEMO_AVATAR.is_file():
             raise AvatarFileError(DEMO_AVATAR, "the bundled demo avatar is missing (build it with "
@@ -49,6 +53,9 @@ def load_avatar(path: str | Path) -> Avatar:
     if is_folder(p):
         if is_gha_folder(p):
             return import_gha(p)
+        if is_ga_folder(p):
+            raise AvatarFileError(p, "is a GaussianAvatars output folder: open it with --flame-model FLAME_PKL "
+                                  "(your FLAME model), or import it with `npga-view import gaussian-avatars`")
         raise AvatarFileError(p, "is a directory, not an avatar file (nor a Gaussian-Head-Avatar checkpoint "
                               "folder: no gaussianhead_latest)")
     try:
@@ -101,10 +108,15 @@ def load_sequence(path: str | Path, fps: float | None = None,
 
 def load_sequence_for(avatar: Avatar, path: str | Path, fps: float | None = None) -> ExpressionSequence:
     """`load_sequence` for an open avatar: an ARKit take goes through the avatar's own blendshape basis, and an
-    avatar without one refuses a take in one line saying how to get one (no detour through the demo's map)."""
+    avatar without one refuses a take in one line saying how to get one (no detour through the demo's map); a
+    GaussianAvatars flame_param.npz drives an avatar posed by FLAME with all its inputs (`flame_sequence`)."""
     p = Path(path)
     if not p.is_dir() and p.suffix.lower() in TAKE_SUFFIXES and avatar.blendshapes is None:
         raise AvatarFileError(p, "is an ARKit take, and the avatar has no blendshape basis to turn its weights into "
                               "expression codes: fit one with `npga-view fit-blendshapes --take TAKE --codes "
                               "TRACKED --out basis.npz` (README, 'Driving the avatar from face captures')")
-    return load_sequence(p, fps, basis=avatar.blendshapes)
+    seq = load_sequence(p, fps, basis=avatar.blendshapes)
+    rig = avatar.rig
+    if rig is not None and rig.skin is not None and seq.flame is not None and "neck_pose" in seq.flame:
+        return validate_sequence(flame_sequence(avatar, seq), p)
+    return seq

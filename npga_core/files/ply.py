@@ -129,21 +129,46 @@ def read_ply_bytes(data: bytes, where: str | Path) -> GaussianCloud:
         raise AvatarFileError(where, "not enough memory to read its vertices") from None
 
 
-def _read_ply(path: Path) -> GaussianCloud:
+def read_ply_extra(path: str | Path, extra: tuple[str, ...]) -> tuple[GaussianCloud, dict[str, np.ndarray]]:
+    """`read_ply` and the float64 columns of the `extra` properties the file has (GaussianAvatars' `binding_0`;
+    each checked finite)."""
+    path = Path(path)
+    found: dict[str, np.ndarray] = {}
+    try:
+        cloud = _read_ply(path, extra, found)
+    except _Bad as e:
+        raise AvatarFileError(path, str(e)) from None
+    except FileNotFoundError:
+        raise AvatarFileError(path, "no such file") from None
+    except MemoryError:
+        raise AvatarFileError(path, "not enough memory to read its vertices") from None
+    except OSError as e:
+        raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None
+    return cloud, found
+
+
+def _read_ply(path: Path, extra: tuple[str, ...] = (), found: dict | None = None) -> GaussianCloud:
     size = regular_file(path, "a PLY file").stat().st_size
     if size == 0:
         raise _Bad("file is empty")
     with open_regular(path, "a PLY file") as fh:
-        return _read_stream(fh, size)
+        return _read_stream(fh, size, extra, found)
 
 
-def _read_stream(fh, size: int) -> GaussianCloud:
+def _read_stream(fh, size: int, extra: tuple[str, ...] = (), found: dict | None = None) -> GaussianCloud:
     fmt, elements, header_len = _parse_header(fh)
     n, props = _vertex_element(elements)
     names = [p for p, _ in props]
     cols = (_ascii_columns(fh, n, names) if fmt == "ascii"
             else _binary_columns(fh, fmt, n, props, size - header_len))
-    return _cloud(cols, names, n)
+    cloud = _cloud(cols, names, n)
+    for name in extra:
+        if name in cols and found is not None:
+            column = np.asarray(cols[name], np.float64)
+            if not np.isfinite(column).all():
+                raise _Bad(f"{name} has NaN/Inf values")
+            found[name] = column
+    return cloud
 
 
 def _vertex_element(elements: _Elements) -> tuple[int, list[tuple[str, str]]]:

@@ -45,6 +45,7 @@ class ExpressionSequence:
     pose: np.ndarray | None = None  # (T, 4, 4) float64, canonical -> world
     pose_source: str = ""
     notes: list[str] = field(default_factory=list)  # one-line notices of the reader (unmatched shapes, gaps)
+    flame: dict[str, np.ndarray] | None = None  # GaussianAvatars: the frames' FLAME inputs (expr, rotation, ...)
 
     def __post_init__(self, rotation, translation, scale) -> None:
         if rotation is None and translation is None and scale is None:

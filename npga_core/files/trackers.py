@@ -5,7 +5,8 @@
   (T, 3, 3), ``translation`` (T, 3), ``scale`` (1, 1) for the whole sequence, ``jaw``, ``neck``, ``eyes``,
   ``frames`` (T,), ``shape``.
 - GaussianAvatars `flame_param.npz`: ``expr`` (T, 100), ``rotation`` (T, 3) axis-angle, ``translation``
-  (T, 3), ``neck_pose``, ``jaw_pose``, ``eyes_pose``, ``shape``, ``static_offset``, ``dynamic_offset``.
+  (T, 3), ``neck_pose``, ``jaw_pose``, ``eyes_pose``, ``shape``, ``static_offset``, ``dynamic_offset``; its FLAME
+  inputs are kept (`ExpressionSequence.flame`) for avatars posed by FLAME (`gaussian_avatars.flame_sequence`).
 
 Both are recognised by their keys (`tracker_of`); the pose matrices come from `npga_core.files.pose`. The
 expression codes are the FLAME expression parameters: they drive an avatar whose code is that vector.
@@ -52,11 +53,13 @@ def read_nersemble(path: Path) -> ExpressionSequence:
 
 def read_gaussian_avatars(path: Path) -> ExpressionSequence:
     """A GaussianAvatars flame_param.npz: codes from `expr`, pose x_world = R x + t (about the origin)."""
-    z = read_npz(path, MAX_SEQUENCE_BYTES, keys=("expr", "rotation", "translation"))
+    keys = ("expr", "rotation", "translation", "neck_pose", "jaw_pose", "eyes_pose")
+    z = read_npz(path, MAX_SEQUENCE_BYTES, keys=keys)
     codes = _codes(z, "expr", path)
     pose = gaussian_avatars_pose(z["rotation"], z["translation"], codes.shape[0], path)
+    flame = {k: real_floats(z[k], path, k, np.float64) for k in keys if k in z}
     return ExpressionSequence(codes, DEFAULT_FPS, path.parent.name if path.stem == "flame_param" else path.stem,
-                              pose=pose, pose_source=GAUSSIAN_AVATARS)
+                              pose=pose, pose_source=GAUSSIAN_AVATARS, flame=flame)
 
 
 def tracker_of(keys: Iterable[str]) -> Callable[[Path], ExpressionSequence] | None:

@@ -105,7 +105,11 @@ def position_jvp(avatar: Avatar, code: np.ndarray, direction: np.ndarray) -> np.
             first = avatar._first_layer[key] = net.precompute(t["means"], t["features"])
         total += mlp_jvp(net, first, z, v, cols, (t["means"], t["features"]))
     rig = avatar.dynamics.rig
-    if rig is not None:  # linear: scale_k * delta_k per unit of channel k, then the rest transform's rotation
+    if rig is not None and rig.skin is not None:  # a skinned mesh: central difference of the centres
+        h, d = 1e-3, avatar.dynamics
+        ahead = d.rig_attribute_offsets(z + h * v, t["means"])["position"]
+        total += (ahead - d.rig_attribute_offsets(z - h * v, t["means"])["position"]) / (2 * h)
+    elif rig is not None:  # linear: scale_k * delta_k per unit of channel k, then the rest transform's rotation
         total += rig.offsets(v[avatar.dynamics.network_dim :].numpy(), linear=True)
         if not rig.identity_transform:
             total = total @ torch.from_numpy(rig.transform[:3, :3].astype(np.float32)).t()

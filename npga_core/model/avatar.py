@@ -26,6 +26,7 @@ from npga_core.model.expression import ExpressionSpace
 from npga_core.model.gaussians import GaussianCloud, PosedGaussians
 from npga_core.model.linear_rig import LinearRig
 from npga_core.model.rigid import transform_posed
+from npga_core.model.skinning import SKIN_ARRAYS
 
 
 @dataclass
@@ -67,11 +68,11 @@ class Avatar:
         rig, ex = self.rig, self.expression
         if rig is None or ex is None or self.dynamics is None or self.dynamics.network_dim:
             return None
-        k = rig.n_channels
+        k = rig.n_inputs
         if ex.n_components != k or not (np.array_equal(ex.basis, np.eye(k, dtype=ex.basis.dtype))
                                          and np.all(ex.std == 1) and not ex.mean.any()):
             return None
-        return rig.channels
+        return rig.input_names
 
     def __len__(self) -> int:
         return len(self.cloud)
@@ -118,6 +119,11 @@ class Avatar:
                     h.update(repr((rig.channels, rig.carrier, rig.turns_covariance)).encode())
                     arrays += [("rig.support", rig.support), ("rig.deltas", rig.deltas), ("rig.scale", rig.scale),
                                ("rig.bias", rig.bias), ("rig.transform", rig.transform)]
+                    if rig.vertices is not None:
+                        arrays.append(("rig.vertices", rig.vertices))
+                    if rig.skin is not None:
+                        h.update(repr(rig.skin.joint_names).encode())
+                        arrays += [(f"rig.skin.{k}", getattr(rig.skin, k)) for k in SKIN_ARRAYS]
             for name, arr in arrays:
                 a = np.ascontiguousarray(arr)
                 h.update(f"{name}{a.dtype.str}{a.shape}".encode())
@@ -156,7 +162,7 @@ class Avatar:
                 timings[key] = (time.perf_counter() - t0) * 1000.0
         if self.dynamics.rig is not None:
             t0 = time.perf_counter()
-            by[RIG] = {"position": self.dynamics.rig_offsets(zfull)}
+            by[RIG] = self.dynamics.rig_attribute_offsets(zfull, t["means"])
             if timings is not None:
                 timings[RIG] = (time.perf_counter() - t0) * 1000.0
         return Offsets(by)

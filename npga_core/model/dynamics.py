@@ -156,10 +156,10 @@ class Offsets:
 RIG = "rig"
 
 
-def attribute_widths(networks: dict[str, ConditionedMLP], rig: bool = False) -> dict[str, int]:
-    """Width of the summed offset of each attribute the networks (and a rig: position) reach (the widest route
-    end), canonical order."""
-    widths: dict[str, int] = {"position": 3} if rig else {}
+def attribute_widths(networks: dict[str, ConditionedMLP], rig: bool | dict[str, int] = False) -> dict[str, int]:
+    """Width of the summed offset of each attribute the networks and a rig reach (the widest route end),
+    canonical order; `rig`: the rig's `attributes` (True: position only)."""
+    widths: dict[str, int] = dict(rig) if isinstance(rig, dict) else {"position": 3} if rig else {}
     for net in networks.values():
         for r in net.config.routes or []:
             widths[r.attribute] = max(widths.get(r.attribute, 0), r.to + r.width)
@@ -208,6 +208,8 @@ class Dynamics(nn.Module):
             raise ValueError(f"the networks disagree on (code, condition, feature) widths: {sorted(dims)}")
         if self.condition_dim and not condition:
             raise ValueError("a condition part of the frame vector needs a description")
+        if rig is not None and rig.skin is not None and (networks or self.rules["rotation"] != "compose"):
+            raise ValueError("a rig on a skinned mesh poses its avatar alone, with the 'compose' rotation rule")
 
     @property
     def F(self) -> ConditionedMLP | None:  # noqa: N802 - the paper's name
@@ -244,7 +246,7 @@ class Dynamics(nn.Module):
     @property
     def rig_dim(self) -> int:
         """Width of the rig's part of the frame vector (its channel weights; 0 without a rig)."""
-        return 0 if self.rig is None else self.rig.n_channels
+        return 0 if self.rig is None else self.rig.n_inputs
 
     @property
     def code_dim(self) -> int:
@@ -262,6 +264,13 @@ class Dynamics(nn.Module):
         w = np.asarray(z, np.float32).reshape(-1)[self.network_dim :]
         return self.rig.offsets(w, rows)
 
+    def rig_attribute_offsets(self, z: torch.Tensor | np.ndarray, means: torch.Tensor,
+                              rows: slice | np.ndarray | None = None) -> dict[str, torch.Tensor]:
+        """The rig's offsets by attribute of `rows` (canonical centres `means`) at frame vector z."""
+        assert self.rig is not None
+        return self.rig.attribute_offsets(self.rig.frame(np.asarray(z, np.float32).reshape(-1)[self.network_dim :]),
+                                          rows, means)
+
     def networks(self) -> dict[str, ConditionedMLP]:
         return dict(self.nets.items())  # type: ignore[arg-type]
 
@@ -275,7 +284,7 @@ class Dynamics(nn.Module):
                 and (self.F is None or [n for n, _ in self.F.config.outputs] == ["position"]))
 
     def attribute_widths(self) -> dict[str, int]:
-        return attribute_widths(self.networks(), self.rig is not None)
+        return attribute_widths(self.networks(), {} if self.rig is None else self.rig.attributes)
 
     def offsets(self, mu: torch.Tensor, f: torch.Tensor, z: torch.Tensor,
                 blend: dict[str, torch.Tensor] | None = None) -> Offsets:
@@ -290,14 +299,15 @@ class Dynamics(nn.Module):
             route_into(acc, net, out, w)  # type: ignore[arg-type]
             by[key] = acc
         if self.rig is not None:
-            by[RIG] = {"position": self.rig_offsets(z)}
+            by[RIG] = self.rig_attribute_offsets(z, mu)
         return Offsets(by)
 
     def validate_for(self, cloud: GaussianCloud) -> None:
         """Raise ValueError if the networks do not fit the cloud's layout."""
         widths = output_widths(cloud.sh_degree, cloud.latent_dim)
-        if self.rig is not None and self.rig.n_points != len(cloud):
-            raise ValueError(f"the rig moves {self.rig.n_points} points, the cloud has {len(cloud)} Gaussians")
+        if self.rig is not None and (self.rig.n_gaussians or self.rig.n_points) != len(cloud):
+            raise ValueError(f"the rig moves {self.rig.n_gaussians or self.rig.n_points} Gaussians, the cloud has "
+                             f"{len(cloud)}")
         for key, net in self.networks().items():
             c = net.config
             if c.feature_dim != cloud.feature_dim:

@@ -9,12 +9,15 @@ for instance), as LAM's avatars are (its player, ``gaussian-splat-renderer-for-l
 
 The points are the Gaussians themselves (``carrier="gaussian"``) or each Gaussian's own mesh vertex
 (``carrier="vertex"``, LAM: mu_i = vertex_i + offset_i, and the vertex carries the Gaussian rigidly, so the
-displacement is the vertex's). Binding Gaussians to the triangles of a separate skinned mesh (GaussianAvatars:
-``carrier="triangle"``) is specified in docs/FORMAT.md and not implemented yet. With `turns_covariance` false
-(LAM) the transform moves the centres only, as its player does; rotations, scales, opacity and colour stay.
+displacement is the vertex's), or the vertices of a skinned mesh whose triangles carry the Gaussians
+(``carrier="triangle"``, GaussianAvatars' FLAME: `skin` holds the joints, skinning weights, pose correctives,
+triangles and each Gaussian's triangle; `npga_core.model.skinning`). With `turns_covariance` false (LAM) the
+transform moves the centres only, as its player does; rotations, scales, opacity and colour stay.
 
-The frame vector of an avatar with a rig is ``[network code, condition, rig weights (K)]``; an avatar with only
-a rig has ``[rig weights]``. Posing code adds `offsets` into the position offset like any network.
+The frame vector of an avatar with a rig is ``[network code, condition, rig inputs]``, the inputs being the K
+channel weights and, with a skin, 3 per joint (axis-angle) and a translation (`input_names`); an avatar with only
+a rig has ``[rig inputs]``. Posing code adds `attribute_offsets` (position; with a skin also rotation, composed,
+and log scale) into the offsets like any network's.
 """
 
 from __future__ import annotations
@@ -24,9 +27,11 @@ from dataclasses import dataclass, field
 import numpy as np
 import torch
 
-CARRIERS = ("gaussian", "vertex")
-#: Rig points bound to a separate mesh's triangles: part of the format's design, refused by this reader.
-RESERVED_CARRIERS = ("triangle",)
+from npga_core.model.skinning import FaceMotion, Skin
+
+CARRIERS = ("gaussian", "vertex", "triangle")
+#: Carriers the format names and this reader refuses (none since format version 5 implemented "triangle").
+RESERVED_CARRIERS: tuple[str, ...] = ()
 
 
 @dataclass
@@ -45,6 +50,7 @@ class LinearRig:
     turns_covariance: bool = False
     source: str = ""
     notes: dict[str, str] = field(default_factory=dict)  # what the source's runtime does that this rig records
+    skin: Skin | None = None  # carrier "triangle": the mesh's skinning and the Gaussians' triangles
     _torch: tuple | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
@@ -78,6 +84,38 @@ class LinearRig:
                 raise ValueError(f"rig {name} has NaN/Inf values")
         if self.vertices is not None and not np.isfinite(self.vertices).all():
             raise ValueError("rig vertices have NaN/Inf values")
+        self._check_skin()
+
+    def _check_skin(self) -> None:
+        """ValueError unless a skin comes exactly with carrier "triangle" and fits the rig."""
+        k = self.n_channels
+        if (self.carrier == "triangle") != (self.skin is not None):
+            raise ValueError("a skin goes with carrier 'triangle' and only with it")
+        if self.skin is not None:
+            if self.vertices is None or self.skin.n_vertices != self.n_points:
+                raise ValueError(f"a triangle rig needs the rest positions of its {self.n_points} mesh vertices "
+                                 "and a skin of as many")
+            if self.skin.joint_deltas.shape[0] != k or not self.identity_transform:
+                raise ValueError(f"a triangle rig needs joint deltas for its {k} channels and no rest transform")
+
+    @property
+    def n_inputs(self) -> int:
+        """Width of the rig's part of the frame vector: the channel weights, then the skin's pose inputs."""
+        return self.n_channels + (0 if self.skin is None else self.skin.pose_dim)
+
+    @property
+    def input_names(self) -> tuple[str, ...]:
+        return self.channels + (() if self.skin is None else self.skin.input_names())
+
+    @property
+    def n_gaussians(self) -> int | None:
+        """How many Gaussians the rig poses when its points are not the Gaussians (None: `n_points`)."""
+        return None if self.skin is None else len(self.skin.binding)
+
+    @property
+    def attributes(self) -> dict[str, int]:
+        """The offsets the rig outputs and their widths."""
+        return {"position": 3} if self.skin is None else {"position": 3, "rotation": 4, "scale": 3}
 
     @property
     def n_channels(self) -> int:
@@ -103,11 +141,11 @@ class LinearRig:
         return self._torch
 
     def offsets(self, w: np.ndarray | torch.Tensor, rows: slice | np.ndarray | None = None,
-                linear: bool = False) -> torch.Tensor:
+                linear: bool = False, runtime: bool = False) -> torch.Tensor:
         """Position displacements (m, 3) of the points `rows` (a slice, an index array or all) at weights w
-        (`linear`: without the channels' bias, the change along a direction w)."""
+        (`linear`: without the channels' bias, the change along a direction w; `runtime`: w are runtime weights)."""
         flat, support, _, _, where = self._tensors()
-        v = self.runtime_weights(w, linear)
+        v = torch.as_tensor(w) if runtime else self.runtime_weights(w, linear)
         if rows is None:
             rows = slice(0, self.n_points)
         if isinstance(rows, slice):
@@ -127,6 +165,25 @@ class LinearRig:
             out[hit] = (v @ flat[:, cols.reshape(-1)]).view(-1, 3)
         return out
 
+    def frame(self, inputs: np.ndarray | torch.Tensor) -> torch.Tensor | FaceMotion:
+        """What one frame's offsets are computed from: the runtime weights, or with a skin each face's motion."""
+        x = np.asarray(inputs, np.float32).reshape(-1)
+        if self.skin is None:
+            return self.runtime_weights(x)
+        assert self.vertices is not None
+        w = self.runtime_weights(x[: self.n_channels]).numpy()
+        posed = self.skin.mesh(self.vertices, self.deltas, self.support, w, x[self.n_channels :])
+        return self.skin.motion(posed, self.vertices)
+
+    def attribute_offsets(self, frame: torch.Tensor | FaceMotion, rows: slice | np.ndarray | None,
+                          means: torch.Tensor | None = None) -> dict[str, torch.Tensor]:
+        """Offsets by attribute (`attributes`) of the Gaussians `rows` at a `frame`; `means`: their canonical
+        centres (needed with a skin)."""
+        if isinstance(frame, FaceMotion):
+            assert self.skin is not None and means is not None
+            return self.skin.offsets(frame, slice(0, len(self.skin.binding)) if rows is None else rows, means)
+        return {"position": self.offsets(frame, rows, runtime=True)}
+
     def dense_deltas(self) -> np.ndarray:
         """(K, N, 3) float32 displacement of every point per unit runtime weight (for inspection)."""
         out = np.zeros((self.n_channels, self.n_points, 3), np.float32)
@@ -144,9 +201,15 @@ class LinearRig:
         """One line for `info`."""
         moved = len(self.support)
         scaled = int(np.count_nonzero(self.scale != 1.0)) + int(np.count_nonzero(self.bias))
-        parts = [f"{self.n_channels} linear blendshape channels on {self.n_points:,} points "
-                 f"(carried by {'their own mesh vertex' if self.carrier == 'vertex' else 'the Gaussians'}; "
+        carried = {"vertex": "carried by their own mesh vertex", "gaussian": "carried by the Gaussians",
+                   "triangle": "the vertices of a skinned mesh"}[self.carrier]
+        parts = [f"{self.n_channels} linear blendshape channels on {self.n_points:,} points ({carried}; "
                  f"{moved:,} moved by some channel)"]
+        if self.skin is not None:
+            sk = self.skin
+            parts.append(f"{len(sk.joint_names)} joints ({', '.join(sk.joint_names)}) by linear blend skinning "
+                         f"with pose correctives, then a translation; {len(sk.binding):,} Gaussians on "
+                         f"{len(sk.faces):,} triangles (position, rotation and scale follow each triangle)")
         if scaled:
             parts.append(f"{scaled} channels rescaled at run time (weight x scale + bias, not clamped)")
         parts.append("rest transform: identity" if self.identity_transform else

@@ -104,7 +104,7 @@ class FastPoser:
         # the rig's rest transform of the centres (None: the identity), applied to every chunk by `apply_rows`
         self._rig_move = None if self.rig is None or self.rig.identity_transform else \
             torch.from_numpy(self.rig.transform.astype(np.float32)).to(self.device)
-        self.layout = OffsetLayout.of(nets, rig=self.rig is not None)
+        self.layout = OffsetLayout.of(nets, rig={} if self.rig is None else self.rig.attributes)
         self.rules = dict(dynamics.rules)
         self.rotation_op = dynamics.rotation_op
         if self.device.type == "cpu":
@@ -297,8 +297,8 @@ class FastPoser:
         assert dynamics is not None
         zt = torch.from_numpy(zfull[: dynamics.network_dim]).to(self.device)
         terms: dict[str, tuple] = {}
-        if self.rig is not None:
-            terms[RIG] = (zfull[dynamics.network_dim :],)
+        if self.rig is not None:  # the rig's per-frame part (runtime weights; a skin's face motions) once a frame
+            terms[RIG] = (self.rig.frame(zfull[dynamics.network_dim :]),)
         chains = self._lanes[0].chains
         for key, net in self.nets.items():
             t = net.code_term(zt)
@@ -341,9 +341,10 @@ class FastPoser:
             lane.busy[key] = lane.busy.get(key, 0.0) + time.perf_counter() - t0
         if self.rig is not None:
             t0 = time.perf_counter()
-            c, _ = self.layout.blocks["position"]
             which = slice(s, e) if rows.index is None else rows.index[s:e]
-            out_rows[:, c : c + 3] += self.rig.offsets(terms[RIG][0], which).to(out_rows.device)
+            for name, d in self.rig.attribute_offsets(terms[RIG][0], which, rows.means[s:e].cpu()).items():
+                c, w = self.layout.blocks[name]
+                out_rows[:, c : c + w] += d.to(out_rows.device)
             lane.busy[RIG] = lane.busy.get(RIG, 0.0) + time.perf_counter() - t0
         return out_rows
 

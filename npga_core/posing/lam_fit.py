@@ -133,7 +133,7 @@ def baked_rgb(sh: np.ndarray, centres: np.ndarray) -> np.ndarray:
 def is_exact(avatar: Avatar) -> bool:
     """True when the avatar is posed by a linear rig alone (its export is exact)."""
     d = avatar.dynamics
-    return d is not None and d.rig is not None and d.network_dim == 0
+    return d is not None and d.rig is not None and d.rig.skin is None and d.network_dim == 0
 
 
 def exact_web_avatar(avatar: Avatar, names: tuple[str, ...]) -> tuple[WebAvatar, np.ndarray]:

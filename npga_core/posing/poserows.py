@@ -24,7 +24,7 @@ class OffsetLayout:
         return sum(w for _, w in self.blocks.values())
 
     @staticmethod
-    def of(networks: dict[str, ConditionedMLP], rig: bool = False) -> OffsetLayout:
+    def of(networks: dict[str, ConditionedMLP], rig: bool | dict[str, int] = False) -> OffsetLayout:
         blocks, col = {}, 0
         for name, width in attribute_widths(networks, rig).items():
             blocks[name] = (col, width)

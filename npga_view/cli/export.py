@@ -19,6 +19,8 @@ class ExportError(CommandError):
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("avatar", help="a .npga checkpoint, a 3DGS .ply, or 'demo'")
+    p.add_argument("--flame-model", default=None, help="your FLAME model pickle: opens a GaussianAvatars output "
+                   "folder (or its point_cloud.ply) as the avatar")
     p.add_argument("--out", required=True, type=Path, help="the .ply file to write (a .zip with --format lam-zip)")
     p.add_argument("--format", choices=("ply", "lam-zip"), default="ply",
                    help="ply: the posed Gaussians (default); lam-zip: a LAM-style web avatar that LAM's web player "
@@ -96,7 +98,7 @@ def run(args: argparse.Namespace) -> int:
         from npga_core.posing.precision import check_precision
 
         precision = check_precision(getattr(args, "precision", "fp32"))
-        avatar = load_avatar(args.avatar)
+        avatar = load_avatar(args.avatar, args.flame_model)
         if args.basis is not None:
             from npga_core.files.basis_file import attach_basis
 

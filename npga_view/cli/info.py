@@ -13,6 +13,8 @@ from npga_core.model.avatar import Avatar
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("path", help="a .npga checkpoint, a 3DGS .ply, or 'demo'")
+    p.add_argument("--flame-model", default=None, help="your FLAME model pickle: opens a GaussianAvatars output "
+                   "folder (or its point_cloud.ply) as the avatar")
 
 
 def _mlp_lines(key: str, net) -> list[str]:
@@ -112,9 +114,13 @@ def _expression_lines(avatar: Avatar) -> list[str]:
 def _rig_lines(rig, first: int) -> list[str]:
     """The rig: its channels, what moves, the runtime rescaling and what the source's runtime does."""
     lines = [f"  rig: {shown(rig.describe())}",
-             f"  rig channels (frame vector {first}..{first + rig.n_channels - 1}, sliders 0..1): "
+             f"  rig channels (frame vector {first}..{first + rig.n_channels - 1}"
+             + (", sliders 0..1): " if rig.skin is None else "): ")
              + ", ".join(shown(c) + ("" if s == 1.0 else f" x{s:g}") + ("" if b == 0.0 else f" {b:+g}")
                          for c, s, b in zip(rig.channels, rig.scale, rig.bias, strict=True))]
+    if rig.skin is not None:
+        lines.append(f"  rig pose inputs (frame vector {first + rig.n_channels}..{first + rig.n_inputs - 1}, "
+                     "axis-angle radians, then translation): " + ", ".join(shown(n) for n in rig.skin.input_names()))
     for key, note in rig.notes.items():
         lines.append(f"  rig {shown(key)}: {shown(note)}")
     return lines
@@ -160,7 +166,7 @@ def run(args: argparse.Namespace) -> int:
         print(take_summary(args.path))
         return 0
     t0 = time.perf_counter()
-    avatar = load_avatar(args.path)
+    avatar = load_avatar(args.path, args.flame_model)
     dt = time.perf_counter() - t0
     print(summary(avatar, avatar.source or args.path, dt))
     from npga_view.rendering.factory import headless_path_line

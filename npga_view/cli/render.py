@@ -38,6 +38,8 @@ class RenderError(CommandError):
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("avatar", help="a .npga checkpoint, a 3DGS .ply, or 'demo'")
+    p.add_argument("--flame-model", default=None, help="your FLAME model pickle: opens a GaussianAvatars output "
+                   "folder (or its point_cloud.ply) as the avatar")
     p.add_argument("--out", required=True, type=Path,
                    help="output: an image (.png/.jpg), raw floats (.npy), or a video (.mp4, needs --sequence)")
     p.add_argument("--camera", type=Path, help="camera JSON (width, height, fx, fy, cx, cy, world_to_camera); "
@@ -510,7 +512,7 @@ def _render(args) -> int:
     from npga_core.posing.precision import check_precision
 
     check_precision(getattr(args, "precision", "fp32"))
-    avatar = load_avatar(args.avatar)
+    avatar = load_avatar(args.avatar, args.flame_model)
     if args.basis is not None:
         from npga_core.files.basis_file import attach_basis
 
