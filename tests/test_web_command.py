@@ -153,6 +153,7 @@ def test_bad_inputs_are_one_line(web_zip: Path, tmp_path: Path, fake_player: Pat
     text.write_text("hello")
     _one_line_error(capsys, ["web", str(text), "--no-browser"], "not a readable zip")
     _one_line_error(capsys, ["web", str(tmp_path), "--no-browser"], "not a regular file")
+    _one_line_error(capsys, ["web", str(web_zip), "--no-browser", "--port", "70000"], "--port")
     _one_line_error(capsys, ["web", str(web_zip), "--no-browser", "--player", str(tmp_path / "nowhere")], "--player")
     _one_line_error(capsys, ["web", str(web_zip), "--no-browser", "--sequence", str(text)], "take")
     with socket.socket() as busy:

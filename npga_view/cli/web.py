@@ -62,8 +62,6 @@ def _serve(args: argparse.Namespace, take: dict | None, receiver, live) -> int:
     from npga_view.web_server import WebServer
 
     build = player(args.player)
-    if not 0 <= args.port < 65536:
-        raise CommandError(f"--port {args.port}: outside 0..65535")
     try:
         server = WebServer(args.avatar, build, args.port, take, live)
     except OSError as e:
@@ -88,6 +86,8 @@ def run(args: argparse.Namespace) -> int:
     """Serve until stopped (Ctrl+C, SIGTERM: main() returns 128 + N); one line and exit 2 for bad inputs."""
     from npga_view.web_server import take_document
 
+    if not 0 <= args.port < 65536:
+        raise CommandError(f"--port {args.port}: outside 0..65535")
     _check_zip(args.avatar)
     take = take_document(args.sequence) if args.sequence is not None else None
     receiver, live = _live(args.live_link) if args.live_link is not None else (None, None)
