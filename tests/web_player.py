@@ -172,3 +172,91 @@ def opencv_camera(shot: dict, width: int, height: int) -> dict:
     fy = (height / 2.0) / np.tan(np.radians(shot["fov"]) / 2.0)
     return {"width": width, "height": height, "fx": fy, "fy": fy, "cx": width / 2.0, "cy": height / 2.0,
             "world_to_camera": (flip @ shot["view"]).tolist()}
+
+
+def _session_dying_with_parent() -> None:
+    """In a child before exec: a process group of its own (killed as one) that gets SIGTERM when the test dies."""
+    from .xvfb import _die_with_parent
+
+    _die_with_parent()
+
+
+def chromium_args(url: str, width: int, height: int, profile: Path) -> list[str]:
+    """Headless chromium on SwiftShader WebGL that can reach 127.0.0.1 only."""
+    return [chromium(), "--headless=new", "--no-sandbox", "--no-first-run", "--disable-extensions",
+            "--use-angle=swiftshader", "--enable-unsafe-swiftshader", "--ignore-gpu-blocklist",
+            "--force-device-scale-factor=1", f"--window-size={width},{height}", f"--user-data-dir={profile}",
+            "--host-resolver-rules=MAP * ~NOTFOUND, EXCLUDE 127.0.0.1", "--disable-background-networking", url]
+
+
+def start(args: list[str], env: dict | None = None, stdout: int = subprocess.DEVNULL) -> subprocess.Popen:
+    """A child in its own process group that dies with the test process (`stop` ends it by its id)."""
+    return subprocess.Popen(args, stdout=stdout, stderr=subprocess.PIPE, env=env, start_new_session=True,
+                            preexec_fn=_session_dying_with_parent)
+
+
+def stop(proc: subprocess.Popen) -> str:
+    """End a child started by `start` (its own process group, nothing else); its stderr."""
+    if proc.poll() is None:
+        os.killpg(proc.pid, signal.SIGTERM)
+        try:
+            proc.wait(10)
+        except subprocess.TimeoutExpired:
+            os.killpg(proc.pid, signal.SIGKILL)
+            proc.wait()
+    return proc.stderr.read().decode(errors="replace") if proc.stderr else ""
+
+
+class Collector:
+    """POSTs of the page's `report=` on 127.0.0.1 (another port than the page's): frames decoded as they come."""
+
+    def __init__(self) -> None:
+        self.frames: list[dict] = []
+        self.log: list[str] = []
+        self.errors: list[str] = []
+        self.cond = threading.Condition()
+        collector = self
+
+        class Handler(BaseHTTPRequestHandler):
+            def log_message(self, *args: Any) -> None:
+                pass
+
+            def do_POST(self) -> None:  # noqa: N802
+                body = self.rfile.read(int(self.headers.get("Content-Length", "0")))
+                self.send_response(204)
+                self.end_headers()
+                doc = json.loads(body)
+                with collector.cond:
+                    if "log" in doc:
+                        collector.log.append(str(doc["log"]))
+                    elif "error" in doc:
+                        collector.errors.append(str(doc["error"]))
+                    else:
+                        rgba = np.frombuffer(base64.b64decode(doc.pop("rgba")), np.uint8)
+                        doc["image"] = rgba.reshape(doc["height"], doc["width"], 4)[::-1, :, :3]
+                        collector.frames.append(doc)
+                    collector.cond.notify_all()
+
+        self.httpd = ThreadingHTTPServer(("127.0.0.1", 0), Handler)
+        self.url = f"http://127.0.0.1:{self.httpd.server_address[1]}/report"
+        threading.Thread(target=self.httpd.serve_forever, daemon=True).start()
+
+    def wait_for(self, test: Any, timeout_s: float, what: str) -> dict:
+        """The first frame (from now on) for which `test(frame)` holds; AssertionError after `timeout_s`."""
+        with self.cond:
+            seen = len(self.frames)
+            end = time.monotonic() + timeout_s
+            while True:
+                for f in self.frames[seen:]:
+                    if test(f):
+                        return f
+                seen = len(self.frames)
+                left = end - time.monotonic()
+                if left <= 0 or self.errors:
+                    raise AssertionError(f"no frame with {what} within {timeout_s:.0f} s ({len(self.frames)} frames; "
+                                         f"page errors {self.errors[-2:]}; page log {self.log[-4:]})")
+                self.cond.wait(min(left, 1.0))
+
+    def close(self) -> None:
+        self.httpd.shutdown()
+        self.httpd.server_close()

@@ -24,6 +24,8 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "evaluate": ("npga_view.cli.evaluate", "render the avatar from a capture's views and score it (PSNR/SSIM/LPIPS)"),
     "fit-blendshapes": ("npga_view.cli.fit_blendshapes", "fit a blendshape basis from an ARKit take and its codes"),
     "webcam": ("npga_view.cli.webcam", "drive a viewer's Live Link from a webcam (MediaPipe face landmarker)"),
+    "web": ("npga_view.cli.web", "play a LAM web avatar zip in the browser (LAM's web player, served on 127.0.0.1), "
+            "driven by a take or Live Link"),
 }
 DEFAULT = "view"
 USAGE = "npga-view [AVATAR] [viewer options] | npga-view COMMAND [options]"
