@@ -66,6 +66,7 @@ class _Image:
     exact_content: bool  # the cloud drawn was the exact pose (not a preview)
     live: bool
     renderer: SplatRenderer  # who draws it: the full cloud's renderer or the merged cloud's
+    first: bool = False  # the first live image after a settled view: drawn with the whole budget (`_frame`)
 
     def info(self, full: SplatRenderer) -> ImageInfo:
         return ImageInfo(self.target, self.scale, self.exact_content, self.live, self.renderer is not full)
@@ -240,7 +241,11 @@ class DrawScheduler:
         if self._job is None:
             return False
         merged = self._job.renderer is not self.renderer
-        self._given_ms = self.frame_budget(live, merged)
+        # the first response to a change after a settled view (a packet, a click, the start of a drag) comes as soon
+        # as the budget allows: one longer UI frame is not seen, a late answer is
+        first = self._job.first and live
+        self._given_ms = max(self.budget_ms, self.frame_budget(live, merged)) if first else \
+            self.frame_budget(live, merged)
         return self._continue(self._given_ms, frame_start)
 
     def _plan_inputs(self, target: Target, live: bool, exact_content: bool,
@@ -281,8 +286,9 @@ class DrawScheduler:
         if decision.source is Source.MERGED_BEHIND and self.lod is not None:
             renderer = self.lod.renderer
         self._lod_wait = None
+        first = decision.live and self._shown is not None and not self._shown.live
         self._start(camera, target.mode, _Image(decision.draw, decision.scale, decision.exact_content,
-                                                decision.live, renderer or self.renderer), now)
+                                                decision.live, renderer or self.renderer, first), now)
         return True
 
     def frame_budget(self, live: bool, merged: bool = False) -> float:
