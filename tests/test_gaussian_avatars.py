@@ -183,3 +183,28 @@ def test_hostile_flame_pickles(world, tmp_path):
         lines = r.stderr.strip().splitlines()
         assert r.returncode == 2 and len(lines) == 1 and str(path) in lines[0], (name, r.stderr)
         assert not out.exists() and not (tmp_path / "PWNED").exists(), name
+
+
+def test_fast_frame_matches_the_reference_path(world):
+    """`LinearRig.frame` (torch: the correctives and skinning as matmuls) gives the face motions of the reference
+    path (`reference_frame`: numpy float64) to float32 rounding, also for large poses."""
+    from npga_core.model.skinning import quat_from_rotation
+
+    avatar = import_gaussian_avatars(world["folder"], world["pickles"]["numpy"])
+    rig = avatar.rig
+    assert rig is not None and rig.skin is not None
+    rng = np.random.default_rng(4)
+    means = torch.from_numpy(avatar.cloud.means.copy())
+    for scale in (0.0, 0.3, 1.5):
+        x = rng.normal(0, scale, rig.n_inputs).astype(np.float32)
+        ref, fast = rig.reference_frame(x), rig.frame(x)
+        assert ((ref.packed - fast.packed).abs() <= 2e-5 * (1 + ref.packed.abs())).all()
+        rows = np.sort(rng.choice(len(avatar), 500, replace=False))
+        for name, got in rig.attribute_offsets(fast, rows, means[rows]).items():
+            want = rig.attribute_offsets(ref, rows, means[rows])[name]
+            assert ((got - want).abs() <= 2e-5 * (1 + want.abs())).all(), name
+    turns = Rotation.random(2000, random_state=1)
+    flips = Rotation.from_rotvec(np.pi * np.eye(3))  # half turns: the largest-component branch
+    for r in (turns, flips):
+        q = quat_from_rotation(torch.from_numpy(r.as_matrix())).numpy()
+        assert np.abs(np.abs((q[:, [1, 2, 3, 0]] * r.as_quat()).sum(1)) - 1).max() < 1e-12 and (q[:, 0] >= 0).all()
