@@ -208,3 +208,36 @@ def test_fast_frame_matches_the_reference_path(world):
     for r in (turns, flips):
         q = quat_from_rotation(torch.from_numpy(r.as_matrix())).numpy()
         assert np.abs(np.abs((q[:, [1, 2, 3, 0]] * r.as_quat()).sum(1)) - 1).max() < 1e-12 and (q[:, 0] >= 0).all()
+
+
+def test_arkit_take_drives_through_a_fitted_flame_basis(world, tmp_path):
+    """No ARKit basis ships for FLAME: a take is refused in one line naming the remedy; `fit-blendshapes --codes
+    flame_param.npz --into` (a take and FLAME parameters of the same frames) gives one, and the take then drives the
+    jaw as the paired parameters did."""
+    from npga_core.errors import AvatarFileError
+    from npga_core.files.arkit_takes import read_take, resampled
+    from npga_view.cli.main import main
+    from tests.test_lam_window import _take
+
+    avatar = import_gaussian_avatars(world["folder"], world["pickles"]["numpy"])
+    npga = tmp_path / "a.npga"
+    save_avatar(avatar, npga)
+    take = tmp_path / "take.csv"
+    _take(take, 60, "jawOpen")
+    with pytest.raises(AvatarFileError, match="fit-blendshapes --take TAKE --codes flame_param.npz"):
+        load_sequence_for(avatar, take)
+    t = read_take(take)
+    jaw_open = resampled(t, [t.names.index("JawOpen")], take)[:, 0]
+    p = gs.flame_params(5, len(jaw_open), scale=0.0)
+    p["jaw_pose"][:, 0] = 0.4 * jaw_open
+    p["expr"][:, 2] = -1.5 * jaw_open
+    np.savez(tmp_path / "flame_param.npz", **p)
+    out = tmp_path / "with_basis.npga"
+    assert main(["fit-blendshapes", "--take", str(take), "--codes", str(tmp_path / "flame_param.npz"), "--into",
+                 str(npga), "--out", str(out)]) == 0
+    driven = read_avatar(out)
+    seq = load_sequence_for(driven, take)
+    names = driven.rig.input_names  # type: ignore[union-attr]
+    got = seq.codes[:, names.index("jaw.x")]
+    assert np.abs(got[-1] - 0.4) < 0.02 and np.abs(got[0]) < 0.02
+    assert np.abs(seq.codes[-1, names.index("expr2")] + 1.5) < 0.05
