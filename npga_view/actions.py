@@ -84,6 +84,11 @@ class LoadBasis(Action):
     path: str  # a blendshape basis .npz (fit-blendshapes) for the open avatar: takes and Live Link go through it
 
 
+@dataclass(frozen=True)
+class SetFlameModel(Action):
+    path: str  # the user's FLAME pickle: GaussianAvatars folders open with it (remembered)
+
+
 # -- camera ------------------------------------------------------------------------------------------------------
 @dataclass(frozen=True)
 class CameraPreset(Action):

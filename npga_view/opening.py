@@ -57,18 +57,36 @@ class OpeningHost(Protocol):
 
 
 def open_avatar(app: OpeningHost, path: str) -> bool:
-    """Load an avatar (errors go to the UI); starts the pose worker for animatable ones."""
+    """Load an avatar (errors go to the UI); starts the pose worker for animatable ones. A GaussianAvatars
+    output folder (or its point_cloud.ply) opens with the FLAME model the user gave (`state.flame_model`) through
+    its cached `.npga` import, which the worker reopens by path; the status line says which happened."""
     try:
-        avatar = load_avatar(path)
+        opened, note = avatar_file(app.state, path)
+        avatar = load_avatar(opened)
     except AvatarFileError as e:
         app.state.report(str(e))
         return False
-    adopt_avatar(app, avatar, path)
+    if note:
+        app.state.tell(note)
+    adopt_avatar(app, avatar, opened)
     app.edits.start(avatar, avatar.source)
     add_recent(app, path)
     if app.window is not None:
         app.window.set_title(f"npga-view - {shown(Path(path).name)}")  # no raw surrogates for glfw
     return True
+
+
+def avatar_file(state: ViewerState, path: str) -> tuple[str, str]:
+    """The file the window opens for `path` and a line saying what was done to get it ("" for most files)."""
+    from npga_core.files.ga_cache import cached_import, is_ga_source
+
+    if path == "demo" or not is_ga_source(path):
+        return path, ""
+    if not state.flame_model:
+        raise AvatarFileError(path, "is a GaussianAvatars avatar, posed by FLAME: give your FLAME model (npga-view "
+                              "view FOLDER --flame-model FLAME_PKL, or 'Set FLAME model' in the Files panel)")
+    out, note = cached_import(path, state.flame_model)
+    return str(out), note
 
 
 def adopt_avatar(app: OpeningHost, avatar: Avatar, path: str) -> None:

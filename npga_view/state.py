@@ -117,13 +117,19 @@ class ViewerState:
     rig_path: str | None = None
     rig_index: int = -1  # -1: orbit camera
     errors: list[str] = field(default_factory=list)
+    notices: list[str] = field(default_factory=list)  # what opening a file did (`tell`), above the panels
     recent: list[str] = field(default_factory=list)
+    flame_model: str | None = None  # the user's FLAME pickle: GaussianAvatars folders open with it (remembered)
     presets: dict[str, list[float]] = field(default_factory=dict)  # user expression presets: name -> code
     actions: list[Action] = field(default_factory=list)  # requests from panels and keys (npga_view/actions.py)
 
     def report(self, message: str) -> None:
         """Show an error in the UI (kept short, newest last, at most 5)."""
         self.errors = (self.errors + [shown(" ".join(str(message).split()))])[-5:]
+
+    def tell(self, message: str) -> None:
+        """Show what happened (not an error) in the UI's status lines (newest last, at most 3)."""
+        self.notices = (self.notices + [shown(" ".join(str(message).split()))])[-3:]
 
     def add_recent(self, path: str) -> None:
         path = str(Path(path).resolve()) if path != "demo" else path
@@ -200,10 +206,11 @@ class ViewerState:
         reported (and ignored)."""
         path = recent_file()
         self.recent = []
-        if not os.path.lexists(path):
-            return
         try:
-            self.recent = read_recent(path)
+            if os.path.lexists(path):
+                self.recent = read_recent(path)
+            if os.path.lexists(flame_model_file()):
+                self.flame_model = read_flame_setting(flame_model_file())
         except AvatarFileError as e:
             self.report(str(e))
 
@@ -211,6 +218,29 @@ class ViewerState:
         text = json.dumps(self.recent).encode()
         with contextlib.suppress(OSError):
             atomic_write(recent_file(), lambda fh: fh.write(text))
+
+
+    def save_flame_model(self) -> None:
+        text = json.dumps({"flame_model": self.flame_model}).encode()
+        with contextlib.suppress(OSError):
+            atomic_write(flame_model_file(), lambda fh: fh.write(text))
+
+
+def flame_model_file() -> Path:
+    """Where the FLAME model last given (`--flame-model`, the Files panel) is remembered."""
+    return config_dir() / "flame_model.json"
+
+
+def read_flame_setting(path: str | Path) -> str | None:
+    """The remembered FLAME model path (untrusted JSON `{"flame_model": PATH}`); AvatarFileError when broken."""
+    try:
+        data = read_json(path, MAX_SESSION_BYTES, what="a FLAME model setting")
+    except OSError as e:
+        raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None
+    value = data.get("flame_model") if isinstance(data, dict) else ""
+    if value is not None and not (isinstance(value, str) and 0 < len(value) < 4096 and "\0" not in value):
+        raise AvatarFileError(path, 'expected {"flame_model": PATH}')
+    return value
 
 
 def recent_file() -> Path:

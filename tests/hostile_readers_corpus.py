@@ -516,13 +516,23 @@ class _System:
 
 def flame_pickles(folder: Path, arrays: dict) -> dict[str, Path]:
     """FLAME pickles that must be refused in one line, nothing run: payloads (os.system; numpy's runstring inside a
-    chumpy object, protocol 0 as Python 2 wrote FLAME 2020), wrong shapes, not a dict, truncated."""
+    chumpy object, protocol 0 as Python 2 wrote FLAME 2020; builtins.eval; an object array), wrong shapes, NaN,
+    faces beyond the vertices, not a dict, truncated, empty, a FIFO, a folder. A payload that ran leaves `PWNED`
+    in the working folder."""
     folder.mkdir(parents=True, exist_ok=True)
     narrow = dict(arrays, shapedirs=arrays["shapedirs"][:, :, :50])
     bad_weights = dict(arrays, weights=arrays["weights"][:, :3])
+    nan = dict(arrays, v_template=np.where(np.arange(len(arrays["v_template"]))[:, None] == 7, np.nan,
+                                           arrays["v_template"]))
+    far_faces = dict(arrays, f=np.where(arrays["f"] == 0, 10**6, arrays["f"]).astype(np.uint32))
     cases = {
         "os.system payload": pickle.dumps({"v_template": _System()}, protocol=2),
         "runstring inside a chumpy object": _RUNSTRING_IN_CH,
+        "builtins.eval": b"(dp0\nS'v_template'\np1\ncbuiltins\neval\n(S\"open('PWNED', 'w')\"\ntRs.",
+        "object array holding a payload": pickle.dumps(dict(arrays, posedirs=np.array([_System()], object)),
+                                                       protocol=2),
+        "NaN in the template": pickle.dumps(nan, protocol=2),
+        "faces beyond the vertices": pickle.dumps(far_faces, protocol=2),
         "shapedirs of 50 components": pickle.dumps(narrow, protocol=2),
         "weights for 3 joints": pickle.dumps(bad_weights, protocol=2),
         "a list, not a dict": pickle.dumps([1, 2, 3], protocol=2),
@@ -534,4 +544,8 @@ def flame_pickles(folder: Path, arrays: dict) -> dict[str, Path]:
         path = folder / (name.replace(" ", "_").replace(",", "") + ".pkl")
         path.write_bytes(data)
         out[name] = path
+    out["a FIFO"] = folder / "fifo.pkl"
+    os.mkfifo(out["a FIFO"])
+    out["a folder"] = folder / "folder.pkl"
+    out["a folder"].mkdir()
     return out

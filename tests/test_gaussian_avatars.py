@@ -183,3 +183,61 @@ def test_hostile_flame_pickles(world, tmp_path):
         lines = r.stderr.strip().splitlines()
         assert r.returncode == 2 and len(lines) == 1 and str(path) in lines[0], (name, r.stderr)
         assert not out.exists() and not (tmp_path / "PWNED").exists(), name
+
+
+def test_fast_frame_matches_the_reference_path(world):
+    """`LinearRig.frame` (torch: the correctives and skinning as matmuls) gives the face motions of the reference
+    path (`reference_frame`: numpy float64) to float32 rounding, also for large poses."""
+    from npga_core.model.skinning import quat_from_rotation
+
+    avatar = import_gaussian_avatars(world["folder"], world["pickles"]["numpy"])
+    rig = avatar.rig
+    assert rig is not None and rig.skin is not None
+    rng = np.random.default_rng(4)
+    means = torch.from_numpy(avatar.cloud.means.copy())
+    for scale in (0.0, 0.3, 1.5):
+        x = rng.normal(0, scale, rig.n_inputs).astype(np.float32)
+        ref, fast = rig.reference_frame(x), rig.frame(x)
+        assert ((ref.packed - fast.packed).abs() <= 2e-5 * (1 + ref.packed.abs())).all()
+        rows = np.sort(rng.choice(len(avatar), 500, replace=False))
+        for name, got in rig.attribute_offsets(fast, rows, means[rows]).items():
+            want = rig.attribute_offsets(ref, rows, means[rows])[name]
+            assert ((got - want).abs() <= 2e-5 * (1 + want.abs())).all(), name
+    turns = Rotation.random(2000, random_state=1)
+    flips = Rotation.from_rotvec(np.pi * np.eye(3))  # half turns: the largest-component branch
+    for r in (turns, flips):
+        q = quat_from_rotation(torch.from_numpy(r.as_matrix())).numpy()
+        assert np.abs(np.abs((q[:, [1, 2, 3, 0]] * r.as_quat()).sum(1)) - 1).max() < 1e-12 and (q[:, 0] >= 0).all()
+
+
+def test_arkit_take_drives_through_a_fitted_flame_basis(world, tmp_path):
+    """No ARKit basis ships for FLAME: a take is refused in one line naming the remedy; `fit-blendshapes --codes
+    flame_param.npz --into` (a take and FLAME parameters of the same frames) gives one, and the take then drives the
+    jaw as the paired parameters did."""
+    from npga_core.errors import AvatarFileError
+    from npga_core.files.arkit_takes import read_take, resampled
+    from npga_view.cli.main import main
+    from tests.test_lam_window import _take
+
+    avatar = import_gaussian_avatars(world["folder"], world["pickles"]["numpy"])
+    npga = tmp_path / "a.npga"
+    save_avatar(avatar, npga)
+    take = tmp_path / "take.csv"
+    _take(take, 60, "jawOpen")
+    with pytest.raises(AvatarFileError, match="fit-blendshapes --take TAKE --codes flame_param.npz"):
+        load_sequence_for(avatar, take)
+    t = read_take(take)
+    jaw_open = resampled(t, [t.names.index("JawOpen")], take)[:, 0]
+    p = gs.flame_params(5, len(jaw_open), scale=0.0)
+    p["jaw_pose"][:, 0] = 0.4 * jaw_open
+    p["expr"][:, 2] = -1.5 * jaw_open
+    np.savez(tmp_path / "flame_param.npz", **p)
+    out = tmp_path / "with_basis.npga"
+    assert main(["fit-blendshapes", "--take", str(take), "--codes", str(tmp_path / "flame_param.npz"), "--into",
+                 str(npga), "--out", str(out)]) == 0
+    driven = read_avatar(out)
+    seq = load_sequence_for(driven, take)
+    names = driven.rig.input_names  # type: ignore[union-attr]
+    got = seq.codes[:, names.index("jaw.x")]
+    assert np.abs(got[-1] - 0.4) < 0.02 and np.abs(got[0]) < 0.02
+    assert np.abs(seq.codes[-1, names.index("expr2")] + 1.5) < 0.05

@@ -130,6 +130,25 @@ def _shrinking_files(d: Path, w: dict) -> dict[str, Path]:
     return cases
 
 
+def _flame_cases(d: Path, w: dict) -> dict[str, Path]:
+    """The hostile FLAME pickles, and (once) the small GaussianAvatars folder they are given with."""
+    from . import ga_synthetic as gs
+
+    if "ga" not in w:
+        w["flame"] = gs.flame_arrays(1)
+        w["ga"] = gs.write_ga_folder(w["root"] / "ga_out", 300, seed=2, frames=2, iterations=(30000,))
+    return hr.flame_pickles(d, w["flame"])
+
+
+def _flame_cli(argv: Callable[[Path, dict], list[str]]) -> dict:
+    """A FLAME pickle given with a GaussianAvatars folder: also nothing run (no PWNED in the working folder) and
+    nothing written (no --out file, no cached import, no config)."""
+    return {**_cli(argv, env=lambda p: {"XDG_CACHE_HOME": str(p.parent / "cache"),
+                                        "XDG_CONFIG_HOME": str(p.parent / "cfg")}),
+            "unwritten": lambda p, w: [w["root"] / "PWNED", w["root"] / "ga.npga", p.parent / "cache",
+                                       p.parent / "cfg"]}
+
+
 READERS: dict[str, tuple[Callable[[Path, dict], dict[str, Path]], dict]] = {
     "expression codes .npy (export --expr)": (
         lambda d, w: hc.npy_codes(d, w["dim"]),
@@ -199,6 +218,14 @@ READERS: dict[str, tuple[Callable[[Path, dict], dict[str, Path]], dict]] = {
     "capture folder (evaluate's reader)": (
         lambda d, w: hr.captures(d),
         _partial("tests.hostile_readers_corpus:open_capture", lambda p, w: [str(p)])),
+    # #37 the user's FLAME model (restricted unpickler) wherever a GaussianAvatars avatar opens
+    "FLAME model pickle (import gaussian-avatars --flame-model)": (
+        _flame_cases,
+        _flame_cli(lambda p, w: ["import", "gaussian-avatars", str(w["ga"]), "--flame-model", str(p), "--out",
+                                 str(w["root"] / "ga.npga")])),
+    "FLAME model pickle (view FOLDER --flame-model)": (
+        _flame_cases,
+        _flame_cli(lambda p, w: ["view", str(w["ga"]), "--flame-model", str(p), "--quit-after-frames", "1"])),
     "files shrinking while read (info/export/render)": (
         _shrinking_files,
         {**_cli(lambda p, w: []), "call": "tests.hostile_readers_corpus:while_shrinking", "args": _shrinking_argv}),
@@ -239,6 +266,9 @@ def _check(name: str, target: Path, spec: dict, world: dict, folder: Path, env: 
             problems.append("the message does not name the file")
     if (folder / hc.MARKER).exists():
         problems.append("UNPICKLED")
+    written = [str(p) for p in spec.get("unwritten", lambda p, w: [])(target, world) if os.path.lexists(p)]
+    if written:
+        problems.append(f"wrote {', '.join(written)}")
     return f"{name}: {'; '.join(problems)} | {text.strip()[-300:]!r}" if problems else None
 
 

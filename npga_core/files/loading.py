@@ -112,6 +112,11 @@ def load_sequence_for(avatar: Avatar, path: str | Path, fps: float | None = None
     GaussianAvatars flame_param.npz drives an avatar posed by FLAME with all its inputs (`flame_sequence`)."""
     p = Path(path)
     if not p.is_dir() and p.suffix.lower() in TAKE_SUFFIXES and avatar.blendshapes is None:
+        if avatar.rig is not None and avatar.rig.skin is not None:
+            raise AvatarFileError(p, "is an ARKit take, and this FLAME-posed (GaussianAvatars) avatar has no ARKit "
+                                  "basis (none ships: FLAME and ARKit need paired frames): fit one from a take and "
+                                  "a flame_param.npz of the same frames with `npga-view fit-blendshapes --take TAKE "
+                                  "--codes flame_param.npz --into AVATAR.npga --out WITH_BASIS.npga`")
         raise AvatarFileError(p, "is an ARKit take, and the avatar has no blendshape basis to turn its weights into "
                               "expression codes: fit one with `npga-view fit-blendshapes --take TAKE --codes "
                               "TRACKED --out basis.npz` (README, 'Driving the avatar from face captures')")

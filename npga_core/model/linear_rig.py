@@ -171,6 +171,15 @@ class LinearRig:
         if self.skin is None:
             return self.runtime_weights(x)
         assert self.vertices is not None
+        w = self.runtime_weights(x[: self.n_channels])
+        rest = torch.from_numpy(self.vertices)
+        posed = self.skin.posed_vertices(rest, self.offsets(w, None, runtime=True), w.numpy(), x[self.n_channels :])
+        return self.skin.face_motion(posed, self.vertices)
+
+    def reference_frame(self, inputs: np.ndarray) -> FaceMotion:
+        """`frame` of a skinned rig by the reference path (numpy, float64: `Skin.mesh`, `Skin.motion`)."""
+        x = np.asarray(inputs, np.float32).reshape(-1)
+        assert self.skin is not None and self.vertices is not None
         w = self.runtime_weights(x[: self.n_channels]).numpy()
         posed = self.skin.mesh(self.vertices, self.deltas, self.support, w, x[self.n_channels :])
         return self.skin.motion(posed, self.vertices)

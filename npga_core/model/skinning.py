@@ -35,12 +35,31 @@ AXES = ("x", "y", "z")
 
 @dataclass
 class FaceMotion:
-    """Per face, its motion since rest at one frame: A (F, 3, 3), b (F, 3), dq (F, 4) wxyz, dlog (F,)."""
+    """Per face, its motion since rest at one frame, packed (F, 17) float32: A - I (9, row-major), b (3), dq (4,
+    wxyz, the rotation's quaternion minus (1, 0, 0, 0)), dlog (1); one gather per chunk of Gaussians."""
 
-    a: torch.Tensor
-    b: torch.Tensor
-    dq: torch.Tensor
-    dlog: torch.Tensor
+    packed: torch.Tensor
+
+    @classmethod
+    def of(cls, a: torch.Tensor, b: torch.Tensor, dq: torch.Tensor, dlog: torch.Tensor) -> FaceMotion:
+        am = a - torch.eye(3, dtype=a.dtype)
+        return cls(torch.cat([am.reshape(-1, 9), b, dq, dlog[:, None]], 1).float().contiguous())
+
+    @property
+    def a(self) -> torch.Tensor:
+        return self.packed[:, :9].reshape(-1, 3, 3) + torch.eye(3)
+
+    @property
+    def b(self) -> torch.Tensor:
+        return self.packed[:, 9:12]
+
+    @property
+    def dq(self) -> torch.Tensor:
+        return self.packed[:, 12:16]
+
+    @property
+    def dlog(self) -> torch.Tensor:
+        return self.packed[:, 16]
 
 
 @dataclass
@@ -56,6 +75,7 @@ class Skin:
     faces: np.ndarray  # (F, 3) int64
     binding: np.ndarray  # (N,) int64 face of each Gaussian
     _rest: tuple | None = field(default=None, init=False, repr=False)
+    _torch: dict | None = field(default=None, init=False, repr=False)
 
     def __post_init__(self) -> None:
         self.joint_names = tuple(str(n) for n in self.joint_names)
@@ -103,7 +123,8 @@ class Skin:
 
     def mesh(self, rest: np.ndarray, deltas: np.ndarray, support: np.ndarray, w: np.ndarray,
              pose: np.ndarray) -> np.ndarray:
-        """Posed vertices (V, 3) float64 at blendshape weights w (K,) and `pose` (pose_dim,)."""
+        """Posed vertices (V, 3) float64 at blendshape weights w (K,) and `pose` (pose_dim,): the reference (numpy,
+        float64) that `posed_vertices` is tested against."""
         w = np.asarray(w, np.float64)
         v = np.array(rest, np.float64)
         if len(support) and w.any():
@@ -114,6 +135,13 @@ class Skin:
         feature = (rot[1:] - np.eye(3)).reshape(-1)
         if feature.any():
             v += np.tensordot(feature.astype(np.float32), self.posedirs, 1)
+        chain = self._chain(rot, joints)
+        t = np.einsum("vj,jab->vab", self.weights.astype(np.float64), chain[:, :3, :])
+        return np.einsum("vab,vb->va", t[:, :, :3], v) + t[:, :, 3] + np.asarray(pose[3 * n:], np.float64)
+
+    def _chain(self, rot: np.ndarray, joints: np.ndarray) -> np.ndarray:
+        """(J, 4, 4) float64 skinning transforms G_j (along the parents, about the rest joints)."""
+        n = len(self.joint_names)
         chain = np.zeros((n, 4, 4))
         for j in range(n):
             local = np.eye(4)
@@ -122,8 +150,43 @@ class Skin:
             local[:3, 3] = joints[j] - (joints[p] if p >= 0 else 0.0)
             chain[j] = local if p < 0 else chain[p] @ local
         chain[:, :3, 3] -= np.einsum("jab,jb->ja", chain[:, :3, :3], joints)
-        t = np.einsum("vj,jab->vab", self.weights.astype(np.float64), chain[:, :3, :])
-        return np.einsum("vab,vb->va", t[:, :, :3], v) + t[:, :, 3] + np.asarray(pose[3 * n:], np.float64)
+        return chain
+
+    def _tensors(self) -> dict:
+        if self._torch is None:
+            self._torch = {"weights64": torch.from_numpy(self.weights.astype(np.float64)),
+                           "posedirs": torch.from_numpy(self.posedirs.reshape(len(self.posedirs), -1)),
+                           "faces": torch.from_numpy(self.faces), "binding": torch.from_numpy(self.binding)}
+        return self._torch
+
+    def posed_vertices(self, rest: torch.Tensor, blend: torch.Tensor, w: np.ndarray, pose: np.ndarray) -> torch.Tensor:
+        """Posed vertices (V, 3) float64 as `mesh`, fast: `rest` (V, 3) and the blendshapes' displacement `blend`
+        (V, 3) given as tensors, the pose correctives one float32 matmul (as `mesh`), the skinning one float64
+        matmul (V x J by J x 12), only the joints' chain (J of them) in numpy."""
+        t = self._tensors()
+        n = len(self.joint_names)
+        joints = self.joints + np.tensordot(np.asarray(w, np.float64), self.joint_deltas.astype(np.float64), 1)
+        rot = rotations.matrix_from_rotvec(np.asarray(pose[: 3 * n], np.float64).reshape(n, 3))
+        v = rest.double() + blend  # float64 sums: small triangles' frames amplify a float32 rounding
+        feature = (rot[1:] - np.eye(3)).reshape(-1)
+        if feature.any():
+            v += (torch.from_numpy(feature.astype(np.float32)) @ t["posedirs"]).view(-1, 3)
+        chain = torch.from_numpy(self._chain(rot, joints)[:, :3, :].reshape(n, 12))
+        g = (t["weights64"] @ chain).view(-1, 3, 4)
+        out = g[:, :, 0] * v[:, :1] + g[:, :, 1] * v[:, 1:2] + g[:, :, 2] * v[:, 2:] + g[:, :, 3]
+        return out + torch.from_numpy(np.asarray(pose[3 * n :], np.float64))
+
+    def face_motion(self, posed: torch.Tensor, rest: np.ndarray) -> FaceMotion:
+        """`motion` in torch (float64) from `posed_vertices`."""
+        r0, s0, c0 = (torch.from_numpy(x) for x in self.rest_frames(rest))
+        r, s, c = torch_face_frames(posed, self._tensors()["faces"])
+        turn = r @ r0.transpose(1, 2)
+        ratio = s / s0
+        a = turn * ratio[:, None, None]
+        b = c - (a @ c0[:, :, None])[:, :, 0]
+        dq = quat_from_rotation(turn)
+        dq[:, 0] -= 1.0
+        return FaceMotion.of(a, b, dq, torch.log(ratio))
 
     def rest_frames(self, rest: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
         """(R0 (F, 3, 3), s0 (F,), c0 (F, 3)) of the rest mesh, float64 (cached)."""
@@ -141,17 +204,17 @@ class Skin:
         b = c - np.einsum("fab,fb->fa", a, c0)
         dq = rotations.quat_from_matrix(turn, proper=True)
         dq[:, 0] -= 1.0
-        f32 = np.float32
-        return FaceMotion(torch.from_numpy(a.astype(f32)), torch.from_numpy(b.astype(f32)),
-                          torch.from_numpy(dq.astype(f32)), torch.from_numpy(np.log(ratio).astype(f32)))
+        return FaceMotion.of(*(torch.from_numpy(x) for x in (a, b, dq, np.log(ratio))))
 
     def offsets(self, motion: FaceMotion, rows: slice | np.ndarray, means: torch.Tensor) -> dict[str, torch.Tensor]:
         """Position, rotation and scale offsets of the Gaussians `rows` whose canonical centres are `means`."""
-        face = torch.from_numpy(self.binding[rows])
-        a, b = motion.a[face], motion.b[face]
-        mu = means.to(a.dtype)
-        pos = torch.bmm(a, mu[:, :, None])[:, :, 0] + b - mu
-        return {"position": pos, "rotation": motion.dq[face], "scale": motion.dlog[face][:, None].expand(-1, 3)}
+        binding = self._tensors()["binding"]
+        face = binding[rows] if isinstance(rows, slice) else binding.index_select(0, torch.from_numpy(
+            np.asarray(rows, np.int64)))
+        g = motion.packed.index_select(0, face)
+        mu = means.to(g.dtype)
+        pos = (g[:, :9].view(-1, 3, 3) * mu[:, None, :]).sum(2)  # (A - I) mu
+        return {"position": pos + g[:, 9:12], "rotation": g[:, 12:16], "scale": g[:, 16:17].expand(-1, 3)}
 
 
 def face_frames(v: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
@@ -163,6 +226,38 @@ def face_frames(v: np.ndarray, faces: np.ndarray) -> tuple[np.ndarray, np.ndarra
     a2 = -_unit(np.cross(a1, a0))
     s = (np.linalg.norm(e1, axis=1) + np.abs(np.einsum("fa,fa->f", a2, e2))) / 2
     return np.stack([a0, a1, a2], axis=2), s, (v0 + v1 + v2) / 3
+
+
+def torch_face_frames(v: torch.Tensor, faces: torch.Tensor) -> tuple[torch.Tensor, torch.Tensor, torch.Tensor]:
+    """`face_frames` in torch."""
+    v0, v1, v2 = v[faces[:, 0]], v[faces[:, 1]], v[faces[:, 2]]
+    e1, e2 = v1 - v0, v2 - v0
+
+    def unit(x: torch.Tensor) -> torch.Tensor:
+        return x / x.norm(dim=1, keepdim=True).clamp_min(1e-20)
+
+    a0 = unit(e1)
+    a1 = unit(torch.linalg.cross(a0, e2))
+    a2 = -unit(torch.linalg.cross(a1, a0))
+    s = (e1.norm(dim=1) + (a2 * e2).sum(1).abs()) / 2
+    return torch.stack([a0, a1, a2], dim=2), s, (v0 + v1 + v2) / 3
+
+
+def quat_from_rotation(m: torch.Tensor) -> torch.Tensor:
+    """Unit quaternions (F, 4) wxyz, w >= 0, of rotation matrices (F, 3, 3): each from its largest component."""
+    tr = m[:, 0, 0] + m[:, 1, 1] + m[:, 2, 2]
+    cand = torch.stack([  # 4 |q_i|^2 for i = w, x, y, z, and each candidate's quaternion times 4 q_i
+        torch.stack([1 + tr, m[:, 2, 1] - m[:, 1, 2], m[:, 0, 2] - m[:, 2, 0], m[:, 1, 0] - m[:, 0, 1]], 1),
+        torch.stack([m[:, 2, 1] - m[:, 1, 2], 1 + 2 * m[:, 0, 0] - tr, m[:, 0, 1] + m[:, 1, 0],
+                     m[:, 0, 2] + m[:, 2, 0]], 1),
+        torch.stack([m[:, 0, 2] - m[:, 2, 0], m[:, 0, 1] + m[:, 1, 0], 1 + 2 * m[:, 1, 1] - tr,
+                     m[:, 1, 2] + m[:, 2, 1]], 1),
+        torch.stack([m[:, 1, 0] - m[:, 0, 1], m[:, 0, 2] + m[:, 2, 0], m[:, 1, 2] + m[:, 2, 1],
+                     1 + 2 * m[:, 2, 2] - tr], 1)], 1)  # (F, 4 candidates, 4)
+    best = cand.diagonal(dim1=1, dim2=2).argmax(1)
+    q = cand[torch.arange(len(m)), best]
+    q = q / q.norm(dim=1, keepdim=True)
+    return torch.where(q[:, :1] < 0, -q, q)
 
 
 def _unit(x: np.ndarray) -> np.ndarray:

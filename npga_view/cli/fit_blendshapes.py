@@ -1,6 +1,8 @@
 """`npga-view fit-blendshapes --take TAKE --codes SEQUENCE --out basis.npz` (or `--into AVATAR.npga --out
 NEW.npga`): a blendshape basis fitted by least squares from an ARKit take and the tracked expression codes of the
-same frames, on its own or written into a copy of the avatar (format version 3)."""
+same frames, on its own or written into a copy of the avatar (format version 3). For a GaussianAvatars avatar
+(`--into A.npga`) the codes may be a flame_param.npz of the take's frames: the basis then gives whole FLAME frame
+vectors (expression, jaw, neck, eyes, head)."""
 
 from __future__ import annotations
 
@@ -62,15 +64,19 @@ def run(args: argparse.Namespace) -> int:
     if not keep:
         return fail(f"{shown(args.take)}: no shape moves beyond {UNEXCITED} in the whole take")
     names = [canonical_arkit(take.names[cols[k]]) or take.names[cols[k]] for k in keep]
-    codes = load_sequence(args.codes).codes
+    avatar = None
+    if args.into is not None:
+        from npga_core.files.loading import load_avatar, load_sequence_for
+
+        avatar = load_avatar(args.into)
+        # a GaussianAvatars flame_param.npz gives the avatar's whole frame vectors (expression, jaw, neck, eyes, head)
+        codes = load_sequence_for(avatar, args.codes).codes
+    else:
+        codes = load_sequence(args.codes).codes
     if len(weights) != len(codes):
         return fail(f"{shown(args.take)} has {len(weights)} frames (at {take.fps:g} fps), {shown(args.codes)} "
                     f"{len(codes)}: the takes must be paired frame by frame")
-    avatar = None
-    if args.into is not None:
-        from npga_core.files.loading import load_avatar
-
-        avatar = load_avatar(args.into)
+    if avatar is not None:
         d = avatar.code_dim - avatar.condition_dim
         if codes.shape[1] not in (d, avatar.code_dim):
             return fail(f"{shown(args.codes)} has {codes.shape[1]}-D codes, {shown(args.into)} takes {d}")

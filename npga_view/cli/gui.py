@@ -16,12 +16,17 @@ from npga_view.actions import Bake, LoadRig
 
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("avatar", nargs="?", default="demo", metavar="AVATAR",
-                   help="a .npga, a 3DGS .ply, a LAM avatar .zip, a Gaussian-Head-Avatar folder or 'demo' "
+                   help="a .npga, a 3DGS .ply, a LAM avatar .zip, a Gaussian-Head-Avatar folder, a GaussianAvatars "
+                        "folder (with --flame-model) or 'demo' "
                         "(default: the bundled demo avatar)")
     p.add_argument("--sequence", metavar="SEQ",
                    help="expression sequence (.npzseq, .npz, .npy, a MonoNPHM/GHA tracking folder, a tracker's "
                         ".npz) or an ARKit take (Live Link Face .csv; LAM, Audio2Face, MediaPipe .json) read through "
                         "the avatar's blendshape basis")
+    p.add_argument("--flame-model", metavar="FLAME_PKL", default=None,
+                   help="your FLAME model (flame2023.pkl or FLAME 2020's generic_model.pkl; read without running code "
+                        "from it): AVATAR may then be a GaussianAvatars output folder, imported once into the user's "
+                        "cache (remembered for the Files panel and drops)")
     p.add_argument("--basis", metavar="BASIS", default=None,
                    help="a blendshape basis .npz (npga-view fit-blendshapes) for the avatar: ARKit takes "
                         "go through it instead of the avatar's own")
@@ -109,6 +114,12 @@ def _open_and_run(args: argparse.Namespace, w: int, h: int, holder: dict) -> int
         return 2
     holder["app"] = app
     try:
+        if args.flame_model:
+            from pathlib import Path
+
+            app.state.flame_model = str(Path(args.flame_model).resolve())
+            if app.remember_recent:
+                app.state.save_flame_model()
         opened = app.open_avatar(args.avatar)
         if args.basis and opened and app.avatar is not None:
             from npga_core.files.basis_file import attach_basis
@@ -154,7 +165,7 @@ def check_files(args: argparse.Namespace) -> None:
     from npga_core.files.loading import load_sequence
     from npga_core.files.rig import load_rig
     from npga_view.controllers.actions import ActionController, read_presets
-    from npga_view.state import ViewerState, read_recent, recent_file
+    from npga_view.state import ViewerState, flame_model_file, read_flame_setting, read_recent, recent_file
 
     if args.basis:
         from npga_core.files.basis_file import read_basis
@@ -171,3 +182,9 @@ def check_files(args: argparse.Namespace) -> None:
         read_presets(presets)
     if os.path.lexists(recent):
         read_recent(recent)
+    if os.path.lexists(flame_model_file()):
+        read_flame_setting(flame_model_file())
+    if getattr(args, "flame_model", None):
+        from npga_core.files.flame_pickle import read_flame_model
+
+        read_flame_model(args.flame_model)  # a hostile or broken pickle: one line, exit 2, before any window

@@ -66,6 +66,7 @@ class ActionController:
             A.LoadSession: lambda a: self.load_session(a.path or "session.json"),
             A.LoadRig: self._load_rig,
             A.LoadBasis: self._load_basis,
+            A.SetFlameModel: self._set_flame_model,
         }
 
     def _expression(self):
@@ -156,6 +157,17 @@ class ActionController:
             return
         basis = attach_basis(avatar, a.path)
         self.host.state.report(f"{a.path}: blendshape basis of {len(basis.names)} shapes loaded for the avatar")
+
+    def _set_flame_model(self, a: A.SetFlameModel) -> None:
+        """Remember the user's FLAME pickle (read when a GaussianAvatars folder opens, never here)."""
+        st = self.host.state
+        if not Path(a.path).is_file():
+            st.report(f"{a.path}: not a file (give your FLAME model, e.g. flame2023.pkl)")
+            return
+        st.flame_model = str(Path(a.path).resolve())
+        if self.host.remember_recent:
+            st.save_flame_model()
+        st.tell(f"FLAME model {st.flame_model}: GaussianAvatars folders now open with it")
 
     def _load_rig(self, a: A.LoadRig) -> None:
         if not a.path:

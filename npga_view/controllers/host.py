@@ -29,6 +29,7 @@ class ViewerHost(Protocol):
     engine: PoseEngine | None
     sequence: ExpressionSequence | None
     content_version: int  # incremented by every `show`
+    remember_recent: bool  # per-user lists and settings are saved (not in tests)
 
     def adopt_avatar(self, avatar: Avatar, path: str) -> None:
         """Show `avatar` (loaded from `path`) as the open avatar."""

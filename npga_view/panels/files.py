@@ -63,9 +63,20 @@ def ask_save(title: str, default_path: str, filters: list[str] | None = None):
 
 
 def open_action(path: str) -> A.OpenAvatar | A.OpenSequence:
-    """Open `path` as an avatar (.npga, .ply files) or else as a sequence (files, tracking folders)."""
+    """Open `path` as an avatar (.npga, .ply files; GaussianAvatars and Gaussian-Head-Avatar folders) or else as
+    a sequence (files, tracking folders)."""
     p = Path(path)
-    return A.OpenAvatar(path) if p.suffix.lower() in AVATAR_EXT and not p.is_dir() else A.OpenSequence(path)
+    if p.is_dir():
+        return A.OpenAvatar(path) if is_avatar_folder(p) else A.OpenSequence(path)
+    return A.OpenAvatar(path) if p.suffix.lower() in AVATAR_EXT else A.OpenSequence(path)
+
+
+def is_avatar_folder(p: Path) -> bool:
+    """A folder the avatar readers open: a GaussianAvatars output or a Gaussian-Head-Avatar checkpoint folder."""
+    from npga_core.files.gaussian_avatars import is_ga_folder
+    from npga_core.files.gha import is_gha_folder
+
+    return is_ga_folder(p) or is_gha_folder(p)
 
 
 _OPENERS = {"open_avatar": A.OpenAvatar, "open_sequence": A.OpenSequence}
@@ -137,10 +148,10 @@ class FilesPanel:
                 if p.name.startswith("."):
                     continue
                 if p.is_dir():
-                    is_track = (p / "00000" / "z_exp.npy").is_file()
-                    if imgui.selectable(f"[{'seq' if is_track else 'dir'}] {shown(p.name)}", False)[0]:
-                        if is_track:
-                            state.actions.append(A.OpenSequence(str(p)))
+                    kind = "avatar" if is_avatar_folder(p) else "seq" if (p / "00000" / "z_exp.npy").is_file() else ""
+                    if imgui.selectable(f"[{kind or 'dir'}] {shown(p.name)}", False)[0]:
+                        if kind:
+                            state.actions.append(open_action(str(p)))
                         else:
                             self.browse = str(p)
                 elif p.suffix in AVATAR_EXT + SEQUENCE_EXT and imgui.selectable(shown(p.name), False)[0]:
@@ -174,6 +185,13 @@ class FilesPanel:
         imgui.same_line()
         if imgui.button("Demo"):
             state.actions.append(A.OpenAvatar("demo"))
+        if imgui.button("Set FLAME model"):
+            state.actions.append(A.SetFlameModel(self.path.strip()))
+        if imgui.is_item_hovered():
+            imgui.set_tooltip("your FLAME model (flame2023.pkl, FLAME 2020's generic_model.pkl): GaussianAvatars "
+                              "output folders then open (imported once into the cache; read without running code)")
+        imgui.same_line()
+        imgui.text_disabled(f"FLAME: {shown(Path(state.flame_model).name) if state.flame_model else '-'}")
         if self._native():
             self.poll_dialog(state)
             self._native_buttons()
