@@ -55,7 +55,7 @@ from npga_core.posing.messages import (  # noqa: F401  (EngineOptions, BakeStatu
     StatusReply,
     peak_rss_mb,
 )
-from npga_core.posing.worker import _worker
+from npga_core.posing.worker import worker_main
 
 
 @dataclass
@@ -104,7 +104,7 @@ class PoseEngine:
         self.bake_status: BakeStatus | None = None
         self._bake_id = 0  # number of the newest bake or cancel request
         self.worker_peak_rss_mb = 0.0
-        self._proc = ctx.Process(target=_worker, daemon=True, name="npga-pose-worker",
+        self._proc = ctx.Process(target=worker_main, daemon=True, name="npga-pose-worker",
                                  args=(path, self.layout, [s.name for s in self._shms], self._slots, self._req,
                                        self._res, threads, self.options, os.getpid()))
         # stops the worker and unlinks the slots when close() is called, the engine is dropped, or the

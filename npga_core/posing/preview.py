@@ -307,10 +307,10 @@ class ProbeNets:
         self.poser, self.precision = poser, precision
         self._layers = {}
         if precision == "bf16":
-            for key, chain in poser._lanes[0].chains.items():
+            for key, chain in poser.chains.items():
                 self._layers[key] = ([w.to(torch.bfloat16) for w in chain.weights],
                                      [b.to(torch.bfloat16) for b in chain.biases], chain.relu, chain.act,
-                                     poser.nets[key]._out_act)
+                                     poser.nets[key].output_act)
 
     @property
     def n(self) -> int:
@@ -323,7 +323,7 @@ class ProbeNets:
             return cast(torch.Tensor, self.poser.offsets(z, out=out, rows=self.rows))  # None only when cancelled
         terms = self.poser.code_terms(z)
         first = cast(dict[str, torch.Tensor], self.rows.first)
-        step = self.poser._chunk_for(self.n)
+        step = self.poser.chunk_for(self.n)
 
         def body(lane, s: int) -> None:
             e = min(self.n, s + step)
@@ -337,9 +337,9 @@ class ProbeNets:
                     if i < len(weights) - 1:
                         h = h.clamp_min_(0.0) if relu else act(h)
                 h = h.float()
-                self.poser._route(key, h if out_act is None else out_act(h), self.rows, s, e, out[s:e])
+                self.poser.route(key, h if out_act is None else out_act(h), self.rows, s, e, out[s:e])
 
-        self.poser._parallel(list(range(0, self.n, step)), body)
+        self.poser.parallel(list(range(0, self.n, step)), body)
         return out
 
 
@@ -418,7 +418,7 @@ class Previewer:
             torch.add(base[s:e], torch.from_numpy(block @ delta), out=rows)
             self.poser.apply_rows(rows, s, e, out)
 
-        self.poser._parallel(list(range(len(self._blocks))), body)
+        self.poser.parallel(list(range(len(self._blocks))), body)
         if timings is not None:
             timings["probes"] = (t1 - t0) * 1e3
             timings["spread_apply"] = (time.perf_counter() - t1) * 1e3

@@ -51,8 +51,10 @@ class _BakeJob:
     write: bool
 
 
-def _worker(path: str, layout: Layout, names: list[str], slot_state, req_q, res_q, threads: int,
-            options: EngineOptions, parent_pid: int | None = None) -> None:
+def worker_main(path: str, layout: Layout, names: list[str], slot_state, req_q, res_q, threads: int,
+                options: EngineOptions, parent_pid: int | None = None) -> None:
+    """The worker process's entry (the `Process` target of `PoseEngine`): open the avatar at `path`, attach the
+    shared-memory slots `names`, answer `req_q`'s requests on `res_q` until told to stop or the parent dies."""
     if parent_pid is not None:
         start_parent_watch(parent_pid, names)
     with contextlib.suppress(ValueError, AttributeError):  # Ctrl+C in a terminal reaches the whole process
