@@ -33,6 +33,7 @@ import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
 from multiprocessing import shared_memory
+from typing import Any
 
 import numpy as np
 
@@ -86,7 +87,7 @@ class PoseEngine:
     """
 
     def __init__(self, path: str, n: int, sh_coeffs: int, latent_dim: int, threads: int = 2,
-                 options: EngineOptions | None = None, **kw):
+                 options: EngineOptions | None = None, **kw: Any) -> None:
         self.options = options or EngineOptions(**kw)
         self.layout = Layout(n, sh_coeffs, latent_dim)
         nbytes = max(4, self.layout.floats * 4)
@@ -249,6 +250,6 @@ class PoseEngine:
     def __enter__(self) -> PoseEngine:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 

@@ -36,7 +36,8 @@ from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
 from npga_core.files.places import cache_folder_for
 from npga_core.files.untrusted import bounded_floats, json_dict, json_int, parse_json, read_npz, real_floats
-from npga_core.posing.fastpose import FastPoser
+from npga_core.model.avatar import Avatar
+from npga_core.posing.fastpose import FastPoser, Lane
 
 PREVIEW_FORMAT = 1
 MAX_CACHED_NEIGHBOURS = 64  # probes per Gaussian accepted from a cache file
@@ -85,7 +86,7 @@ class PreviewModel:
 
     # -- fitting -------------------------------------------------------------------------------------------
     @staticmethod
-    def sample_codes(avatar, count: int, seed: int = 0, scale: float = 1.0) -> np.ndarray:
+    def sample_codes(avatar: Avatar, count: int, seed: int = 0, scale: float = 1.0) -> np.ndarray:
         """`count` codes from the avatar's expression space (slider values ~ N(0, scale^2))."""
         rng = np.random.default_rng(seed)
         ex = avatar.expression
@@ -325,7 +326,7 @@ class ProbeNets:
         first = cast(dict[str, torch.Tensor], self.rows.first)
         step = self.poser.chunk_for(self.n)
 
-        def body(lane, s: int) -> None:
+        def body(lane: Lane, s: int) -> None:
             e = min(self.n, s + step)
             out[s:e].zero_()
             for key in self.poser.nets:
@@ -410,7 +411,7 @@ class Previewer:
         out = {k: torch.from_numpy(v) for k, v in dest.items() if v is not None}
         base = self.base
 
-        def body(lane, i: int) -> None:
+        def body(lane: Lane, i: int) -> None:
             block = self._blocks[i]
             s = i * self.chunk
             e = s + block.shape[0]
