@@ -1,29 +1,27 @@
-"""Actions: one small frozen dataclass per thing a user can ask for, and the table that runs them.
+"""Actions: one small frozen dataclass per thing a user can ask for.
 
 Panels, keys and drops never call the app: they append an action (e.g. ``OpenAvatar("a.npga")``) to
-``state.actions``; once per frame the app hands each one to its `Dispatcher`, which looks up the handler
-registered for the action's *type* (each controller registers its own table). An action type nobody handles,
-a queued object that is not an action, or a field of the wrong type is an `ActionError`: raised in tests
-(``NPGA_VIEW_STRICT_ACTIONS=1``, set by tests/conftest.py), logged and shown in the window otherwise; never a
-silent no-op.
+``state.actions``; once per frame the app hands each one to its `Dispatcher` (npga_view/dispatch.py, whose
+names are re-exported here), which runs the handler registered for the action's *type*. Each controller
+registers typed handlers (``handlers.register(OrbitBy, self._orbit)``), so mypy checks a handler against its
+action's fields. An action type nobody handles, a queued object that is not an action, or a field of the wrong
+type is an `ActionError`: raised in tests, logged and shown in the window otherwise; never a silent no-op.
 
 Nothing here touches GL, glfw or imgui.
 """
 
 from __future__ import annotations
 
-import dataclasses
-import logging
-import numbers
-import os
-import types
-import typing
-from collections.abc import Callable, Iterator, Mapping, Sequence
+from collections.abc import Mapping
 from dataclasses import dataclass, field
-from typing import Any, Literal
+from typing import Literal
 
-log = logging.getLogger("npga_view.actions")
-STRICT_ENV = "NPGA_VIEW_STRICT_ACTIONS"
+from npga_view.dispatch import STRICT_ENV as STRICT_ENV
+from npga_view.dispatch import Action as Action
+from npga_view.dispatch import ActionError as ActionError
+from npga_view.dispatch import Dispatcher as Dispatcher
+from npga_view.dispatch import Handlers as Handlers
+from npga_view.dispatch import check_fields as check_fields
 
 Point2 = tuple[float, float]
 Point3 = tuple[float, float, float]
@@ -32,15 +30,6 @@ SelectToolName = Literal["rect", "lasso", "brush", "sphere", "box", "range"]
 PresetName = Literal["front", "three_quarter", "side", "top"]
 KeySource = Literal["sliders", "frame", "preset"]
 Track = Literal["expression", "camera"]
-
-
-class ActionError(Exception):
-    """An action nobody handles, or one whose fields have the wrong types (a programming error)."""
-
-
-@dataclass(frozen=True)
-class Action:
-    """Base of every action; subclasses are frozen dataclasses whose fields are checked by `check_fields`."""
 
 
 # -- files, sessions, output -------------------------------------------------------------------------------------
@@ -505,94 +494,3 @@ def action_types() -> list[type[Action]]:
     return [c for c in globals().values() if isinstance(c, type) and issubclass(c, Action) and c is not Action]
 
 
-def _matches(value: object, tp: Any) -> bool:
-    """Whether `value` fits the annotation `tp` (the few kinds actions use)."""
-    origin, args = typing.get_origin(tp), typing.get_args(tp)
-    if tp is typing.Any or tp is object:
-        return True
-    if tp is type(None):
-        return value is None
-    if origin in (typing.Union, types.UnionType):
-        return any(_matches(value, a) for a in args)
-    if origin is Literal:
-        return value in args
-    if tp is bool:
-        return isinstance(value, bool)
-    if tp is int:
-        return isinstance(value, numbers.Integral) and not isinstance(value, bool)
-    if tp is float:
-        return isinstance(value, numbers.Real) and not isinstance(value, bool)
-    if tp is str:
-        return isinstance(value, str)
-    if origin is tuple:
-        if not isinstance(value, tuple):
-            return False
-        if len(args) == 2 and args[1] is Ellipsis:
-            return all(_matches(v, args[0]) for v in value)
-        return len(value) == len(args) and all(_matches(v, a) for v, a in zip(value, args, strict=True))
-    if origin in (Mapping, dict) or tp in (Mapping, dict):
-        return isinstance(value, Mapping)
-    raise TypeError(f"actions cannot check fields of type {tp!r}")
-
-
-_HINTS: dict[type, dict[str, Any]] = {}
-
-
-def check_fields(action: object) -> None:
-    """ActionError unless `action` is an `Action` whose every field has its annotated type."""
-    if not isinstance(action, Action):
-        raise ActionError(f"not an action: {action!r:.80}")
-    cls = type(action)
-    hints = _HINTS.get(cls)
-    if hints is None:
-        hints = _HINTS[cls] = typing.get_type_hints(cls)
-    for f in dataclasses.fields(action):
-        value = getattr(action, f.name)
-        if not _matches(value, hints[f.name]):
-            raise ActionError(f"{cls.__name__}.{f.name}: expected {hints[f.name]}, got {value!r:.80}")
-
-
-Handler = Callable[[Any], None]
-
-
-class Dispatcher:
-    """Runs each action by the handler registered for its type (`register`); see the module docstring."""
-
-    def __init__(self, strict: bool | None = None):
-        self.strict = os.environ.get(STRICT_ENV) == "1" if strict is None else strict
-        self.table: dict[type[Action], Handler] = {}
-
-    def register(self, handlers: Mapping[type[Action], Handler]) -> None:
-        """Add a controller's table; an action type handled twice is an error."""
-        twice = sorted(t.__name__ for t in handlers if t in self.table)
-        if twice:
-            raise ActionError(f"actions handled twice: {', '.join(twice)}")
-        self.table.update(handlers)
-
-    def dispatch(self, action: object) -> None:
-        """Check `action` and run its handler; ActionError for an unknown type or bad fields. Errors of the
-        handler (a bad file, a refused edit) propagate for the caller to report."""
-        check_fields(action)
-        assert isinstance(action, Action)  # (check_fields said so)
-        handler = self.table.get(type(action))
-        if handler is None:
-            raise ActionError(f"no handler for the action {type(action).__name__}")
-        handler(action)
-
-    def run_all(self, actions: Sequence[object], report: Callable[[str], None],
-                expected: tuple[type[BaseException], ...] = ()) -> None:
-        """Dispatch each action; `expected` errors (bad files, refused edits) and, unless strict, ActionErrors go
-        to `report` (the window's error list); a strict dispatcher raises ActionError."""
-        for action in actions:
-            try:
-                self.dispatch(action)
-            except ActionError as e:
-                if self.strict:
-                    raise
-                log.error("%s", e)
-                report(f"internal error: {e}")
-            except expected as e:
-                report(str(e))
-
-    def __iter__(self) -> Iterator[type[Action]]:
-        return iter(self.table)

@@ -120,10 +120,10 @@ class ViewerApp:
                                self.pick, self.compare.drag_divider)
         # every action type -> its controller's handler (npga_view/actions.py); strict in tests
         self.dispatcher = Dispatcher()
-        self.dispatcher.register(self.actions.handlers())
-        self.dispatcher.register(self.edits.handlers())
-        self.dispatcher.register(self.live.handlers())
-        self.dispatcher.register(self.compare.handlers())
+        self.dispatcher.include(self.actions.handlers())
+        self.dispatcher.include(self.edits.handlers())
+        self.dispatcher.include(self.live.handlers())
+        self.dispatcher.include(self.compare.handlers())
         self.panels = Panels(files=FilesPanel(browse=os.getcwd()))
         self._publish_info()
 

@@ -17,17 +17,32 @@ ROOT = Path(__file__).resolve().parents[1]
 def test_dispatch_runs_the_handler_registered_for_the_type():
     seen = []
     d = A.Dispatcher(strict=True)
-    d.register({A.OpenAvatar: seen.append, A.StepFrames: seen.append})
+    d.register(A.OpenAvatar, seen.append)
+    d.register(A.StepFrames, seen.append)
     d.dispatch(A.OpenAvatar("a.npga"))
     d.dispatch(A.StepFrames(-1))
     assert seen == [A.OpenAvatar("a.npga"), A.StepFrames(-1)]
     with pytest.raises(A.ActionError, match="handled twice: OpenAvatar"):
-        d.register({A.OpenAvatar: seen.append})
+        d.register(A.OpenAvatar, seen.append)
+
+
+def test_a_controller_table_is_included_once():
+    seen: list[A.Action] = []
+    table = A.Handlers()
+    table.register(A.Bake, seen.append)
+    table.register(A.CancelBake, seen.append)
+    d = A.Dispatcher(strict=True)
+    d.include(table)
+    assert set(d) == {A.Bake, A.CancelBake} and len(d) == 2
+    d.dispatch(A.CancelBake())
+    assert seen == [A.CancelBake()]
+    with pytest.raises(A.ActionError, match="handled twice: Bake, CancelBake"):
+        d.include(table)
 
 
 def test_unknown_action_or_bad_field_raises_when_strict():
     d = A.Dispatcher(strict=True)
-    d.register({A.OpenAvatar: lambda a: None})
+    d.register(A.OpenAvatar, lambda a: None)
     with pytest.raises(A.ActionError, match="no handler for the action Bake"):
         d.dispatch(A.Bake())
     with pytest.raises(A.ActionError, match="not an action"):
@@ -48,7 +63,8 @@ def test_unknown_action_or_bad_field_raises_when_strict():
 def test_lenient_dispatcher_reports_and_goes_on():
     seen, reports = [], []
     d = A.Dispatcher(strict=False)
-    d.register({A.OpenAvatar: seen.append, A.LoadRig: lambda a: (_ for _ in ()).throw(ValueError("bad rig"))})
+    d.register(A.OpenAvatar, seen.append)
+    d.register(A.LoadRig, lambda a: (_ for _ in ()).throw(ValueError("bad rig")))
     d.run_all([A.Bake(), A.LoadRig("r.json"), A.OpenAvatar("a.npga")], reports.append, expected=(ValueError,))
     assert seen == [A.OpenAvatar("a.npga")]
     assert reports == ["internal error: no handler for the action Bake", "bad rig"]

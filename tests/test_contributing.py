@@ -31,4 +31,4 @@ def test_the_worked_example_runs():
     from npga_view.panels import Panels
 
     assert "side" in dir(Panels) and hasattr(ActionController, "handlers")
-    assert "A.RollBy" in (ROOT / "npga_view" / "controllers" / "actions.py").read_text()
+    assert "h.register(A.RollBy, self._roll)" in (ROOT / "npga_view" / "controllers" / "actions.py").read_text()

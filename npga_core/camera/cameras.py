@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 #: Largest focal length or principal-point coordinate in pixels (`npga_core.files.untrusted` shares it).
 MAX_FOCAL = 1e7
@@ -208,7 +209,8 @@ def focal_from_fov(fov_y_deg: float, height: int) -> float:
     return 0.5 * height / math.tan(math.radians(fov_y_deg) / 2.0)
 
 
-def look_at(eye, target, up=(0.0, 1.0, 0.0), fov_y_deg: float = 20.0, width: int = DEFAULT_WIDTH,
+def look_at(eye: npt.ArrayLike, target: npt.ArrayLike, up: npt.ArrayLike = (0.0, 1.0, 0.0), fov_y_deg: float = 20.0,
+            width: int = DEFAULT_WIDTH,
             height: int = DEFAULT_HEIGHT) -> Camera:
     """A camera at `eye` looking at `target`, with `up` pointing up in the image; square pixels, centred cx, cy."""
     eye = np.asarray(eye, dtype=np.float64)

@@ -15,6 +15,7 @@ import platform
 import shutil
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
@@ -30,7 +31,7 @@ from npga_core.demo.expression_map import ExpressionMap
 from npga_core.demo.expressions import ExpressionSampler, named_weights
 from npga_core.demo.ict import ICT_WHERE, IctHead, load_ict
 from npga_core.demo.readme import DEFAULT_OUT, write_readme
-from npga_core.demo.sampling import interpolate, label_iris, uniform_samples
+from npga_core.demo.sampling import SurfaceSamples, interpolate, label_iris, uniform_samples
 from npga_core.demo.sequences import build_sequences
 from npga_core.demo.targets import AppearanceTargets, HeadTargets
 from npga_core.files.basis_file import read_expression_map
@@ -64,7 +65,8 @@ def _stats(err: np.ndarray) -> dict[str, float]:
             "max": round(float(e.max()), 3)}
 
 
-def _extra_points(head: IctHead, samples, rng: np.random.Generator, count: int):
+def _extra_points(head: IctHead, samples: SurfaceSamples, rng: np.random.Generator,
+                  count: int) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
     """Uniform (not blue-noise) canonical points on the sampled triangles, for F's distillation."""
     tri, bary = uniform_samples(head, np.unique(samples.tri), count, rng)
     pts = interpolate(head.vertices, head.faces, tri, bary).astype(np.float32)
@@ -75,7 +77,7 @@ def _extra_points(head: IctHead, samples, rng: np.random.Generator, count: int):
 
 
 def build(out: Path, seed: int = 0, cfg: BuildConfig | None = None, ict: Path | None = None, quick: bool = False,
-          log=print) -> dict:
+          log: Callable[[str], object] = print) -> dict:
     """Run the whole build and write `out`; returns the summary (also stored in the avatar's provenance)."""
     cfg = cfg or (BuildConfig.quick() if quick else BuildConfig())
     t_start = time.perf_counter()

@@ -11,6 +11,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 from scipy.spatial import cKDTree
 
 from npga_core.demo.ict import LIMBUS_ANGLE, PART_NAMES, IctHead
@@ -63,7 +64,7 @@ class FourierNoise:
             terms / 2)
 
 
-def _blob(points: np.ndarray, centre, radius: float) -> np.ndarray:
+def _blob(points: np.ndarray, centre: npt.ArrayLike, radius: float) -> np.ndarray:
     return np.exp(-0.5 * np.sum((points - np.asarray(centre) * CM) ** 2, axis=1) / (radius * CM) ** 2)
 
 

@@ -24,6 +24,7 @@ import math
 import platform
 import sys
 import time
+from collections.abc import Callable
 from dataclasses import asdict, dataclass, field
 from pathlib import Path
 from typing import Any, cast
@@ -50,6 +51,7 @@ from npga_core.inspection.graph import knn, laplacian_penalty
 from npga_core.model.avatar import Avatar
 from npga_core.model.cnn import CNNConfig, ConvLayer, ScreenCNN
 from npga_core.model.dynamics import ConditionedMLP, Dynamics, MLPConfig, cloud_tensors
+from npga_core.model.gaussians import PosedGaussians
 
 #: Backgrounds of the report: the window's default black and the documentation's light grey.
 EVAL_BACKGROUNDS = ((0.0, 0.0, 0.0), (0.93, 0.93, 0.94))
@@ -129,12 +131,12 @@ class _Blend(torch.autograd.Function):
     """blend @ x with the backward pass through the stored transpose (CSR times dense, both ways)."""
 
     @staticmethod
-    def forward(ctx, blend: torch.Tensor, blend_t: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
+    def forward(ctx: Any, blend: torch.Tensor, blend_t: torch.Tensor, x: torch.Tensor) -> torch.Tensor:
         ctx.blend_t = blend_t
         return torch.sparse.mm(blend, x)
 
     @staticmethod
-    def backward(ctx, grad: torch.Tensor):
+    def backward(ctx: Any, grad: torch.Tensor) -> tuple[None, None, torch.Tensor]:
         return None, None, torch.sparse.mm(ctx.blend_t, grad.contiguous())
 
 
@@ -254,7 +256,8 @@ class CropSampler:
         return crop_camera(cam, x0, y0, s, s), cam
 
 
-def make_crop(posed, target: HeadRenderer, weights: np.ndarray, cameras: tuple[Camera, Camera], expr: int) -> Crop:
+def make_crop(posed: PosedGaussians, target: HeadRenderer, weights: np.ndarray, cameras: tuple[Camera, Camera],
+              expr: int) -> Crop:
     """A crop (crop camera, whole view's camera) of the posed splats and the target (blending matrices built later
     by `Crop.link`)."""
     camera, view = cameras
@@ -265,7 +268,7 @@ def make_crop(posed, target: HeadRenderer, weights: np.ndarray, cameras: tuple[C
 
 
 def build_data(avatar: Avatar, target: HeadRenderer, sampler: CropSampler, w: np.ndarray, z: np.ndarray,
-               crops_each: int, rng: np.random.Generator, log) -> list[ExpressionData]:
+               crops_each: int, rng: np.random.Generator, log: Callable[[str], object]) -> list[ExpressionData]:
     """Crops of every expression (posed by the avatar's F and G) with G's hidden layer on the Gaussians they see."""
     dyn = avatar.dynamics
     assert dyn is not None and dyn.G is not None  # the demo avatar has G
@@ -326,7 +329,7 @@ def random_backgrounds(n: int, gen: torch.Generator) -> torch.Tensor:
 
 
 def train(model: RefineModel, data: list[ExpressionData], nbrs: torch.Tensor, cfg: RefineConfig, seed: int,
-          log) -> list[float]:
+          log: Callable[[str], object]) -> list[float]:
     """Adam on L1 + mse_weight * MSE of the refined crops (inner part) + the Laplacian term on h; returns the L1
     curve."""
     gen = torch.Generator().manual_seed(seed)
@@ -399,7 +402,7 @@ def initial_latent(features: np.ndarray, dim: int) -> np.ndarray:
 
 # --- the stage -----------------------------------------------------------------------------------------
 def refine(out: Path, seed: int = 0, cfg: RefineConfig | None = None, ict: Path | None = None, quick: bool = False,
-           log=print) -> dict:
+           log: Callable[[str], object] = print) -> dict:
     """Train h, G's latent block and the CNN for `out`/avatar.npga and rewrite it; returns the stage summary."""
     cfg = cfg or (RefineConfig.quick() if quick else RefineConfig())
     t_start = time.perf_counter()

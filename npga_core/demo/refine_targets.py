@@ -20,7 +20,7 @@ from npga_core.demo.canonical import CanonicalBuild
 from npga_core.demo.colors import AlbedoModel, bake_lighting, cavity
 from npga_core.demo.ict import PART_NAMES, IctHead, pose_vertices
 from npga_core.demo.mesh_raster import box_filter, rasterize_mesh, supersampled
-from npga_core.demo.sampling import DEFAULT_DENSITY, _sampleable, interpolate, label_iris, tangent_frames
+from npga_core.demo.sampling import DEFAULT_DENSITY, interpolate, label_iris, sampleable_density, tangent_frames
 from npga_core.demo.targets import VertexGradients, darkening, min_stretch, shading_weights
 
 
@@ -32,7 +32,7 @@ class HeadRenderer:
         self.canon = canon
         self.albedo = albedo
         self.supersample = supersample
-        self.tri = np.flatnonzero(_sampleable(head, DEFAULT_DENSITY) > 0)
+        self.tri = np.flatnonzero(sampleable_density(head, DEFAULT_DENSITY) > 0)
         self.faces = head.faces[self.tri]
         self.normals0 = head.vertex_normals()
         self.cavity0 = cavity(head.vertices.astype(np.float64), self.normals0.astype(np.float64),

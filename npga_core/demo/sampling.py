@@ -90,8 +90,9 @@ def poisson_select(points: np.ndarray, radius: float, rng: np.random.Generator) 
     return chosen
 
 
-def _sampleable(head: IctHead, density: dict[str, float]) -> np.ndarray:
-    """Per-triangle density (0 where not sampled), with the hidden back of the eyeballs removed."""
+def sampleable_density(head: IctHead, density: dict[str, float]) -> np.ndarray:
+    """Per-triangle sampling density of `head` (0 where not sampled), with the hidden back of the eyeballs
+    removed (also the triangles the refine targets are drawn on)."""
     dens = np.zeros(len(head.faces))
     for name, d in density.items():
         dens[head.tri_part == PART_NAMES.index(name)] = d
@@ -109,7 +110,7 @@ def sample_surface(head: IctHead, n_target: int, rng: np.random.Generator,
                    refinements: int = 2) -> SurfaceSamples:
     """About `n_target` blue-noise samples over the sampled parts, area-weighted by part density."""
     density = DEFAULT_DENSITY if density is None else density
-    dens = _sampleable(head, density)
+    dens = sampleable_density(head, density)
     area = head.triangle_areas()
     budget = n_target / float((dens * area).sum())
     normals_v = head.vertex_normals()

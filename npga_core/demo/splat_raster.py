@@ -17,6 +17,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+import numpy.typing as npt
 import torch
 
 from npga_core.camera.cameras import Camera
@@ -45,7 +46,7 @@ class SplatImage:
     gaussian: np.ndarray  # (K,) int64 index into the cloud
     weight: np.ndarray  # (K,) float32 a_i T_i (entries below the rasteriser's min_weight dropped)
 
-    def over(self, background) -> np.ndarray:
+    def over(self, background: npt.ArrayLike) -> np.ndarray:
         """The colour image over a background colour: C + (1 - A) bg (H, W, 3)."""
         bg = np.asarray(background, np.float32).reshape(1, 1, 3)
         return self.rgb + (1.0 - self.alpha[..., None]) * bg
@@ -98,7 +99,8 @@ def sh_colour(sh: np.ndarray, dirs: np.ndarray) -> np.ndarray:
     return np.maximum(out + 0.5, 0.0)
 
 
-def project_splats(means, quats, scales, opacities, camera: Camera, near: float = NEAR,
+def project_splats(means: np.ndarray, quats: np.ndarray, scales: np.ndarray, opacities: np.ndarray, camera: Camera,
+                   near: float = NEAR,
                    fov_camera: Camera | None = None) -> dict[str, np.ndarray]:
     """Screen quantities of the Gaussians the renderer keeps: index, depth, centre (u, v), conic, opacity and
     the half extent (px) of the bounding box of the ellipse where alpha reaches 1/255. The Jacobian clamp uses
@@ -152,7 +154,8 @@ def pixel_ranges(lo: np.ndarray, hi: np.ndarray, size: int) -> tuple[np.ndarray,
     return first, last
 
 
-def box_pixels(x0, x1, y0, y1) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+def box_pixels(x0: np.ndarray, x1: np.ndarray, y0: np.ndarray, y1: np.ndarray) -> tuple[np.ndarray, np.ndarray,
+               np.ndarray]:
     """All (item, x, y) of the boxes [x0, x1] x [y0, y1] (inclusive), one row per covered pixel."""
     wb = np.maximum(x1 - x0 + 1, 0)
     hb = np.maximum(y1 - y0 + 1, 0)
@@ -175,7 +178,8 @@ def chunk_slices(count: np.ndarray, limit: int) -> list[slice]:
     return out
 
 
-def rasterize_splats(means, quats, scales, opacities, sh, camera: Camera, near: float = NEAR,
+def rasterize_splats(means: np.ndarray, quats: np.ndarray, scales: np.ndarray, opacities: np.ndarray,
+                     sh: np.ndarray, camera: Camera, near: float = NEAR,
                      min_weight: float = 1e-4, fov_camera: Camera | None = None) -> SplatImage:
     """Rasterise posed, activated Gaussians (as `PosedGaussians` holds them) from `camera`; see the module docstring.
 

@@ -187,7 +187,7 @@ class KeyframeTimeline:
             raise ValueError(f"unknown keyframe track {brief(track)}; choose from {', '.join(TRACKS)}")
         return self.expression if track == "expression" else self.camera
 
-    def update_key(self, track: str, index: int, **changes) -> int:
+    def update_key(self, track: str, index: int, **changes: object) -> int:
         """Change fields of a key (time, interp, ease_in, ease_out, hold, label, code/camera); returns its new
         index (keys stay sorted; moving onto another key's time replaces that key)."""
         keys = self.keys(track)

@@ -23,6 +23,7 @@ import threading
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
@@ -127,7 +128,7 @@ def image_size(path: Path) -> tuple[int, int]:
     return size
 
 
-def _jpeg_size(fh) -> tuple[int, int] | None:
+def _jpeg_size(fh: IO[bytes]) -> tuple[int, int] | None:
     """The frame size of a JPEG's first start-of-frame segment (markers walked from the start, at most 4096)."""
     fh.seek(2)
     for _ in range(4096):

@@ -13,6 +13,7 @@ from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 #: AlexNet weights torchvision caches for LPIPS' default backbone; LPIPS is only used when this is present
 ALEXNET_WEIGHTS = "alexnet-owt-7be5be79.pth"
@@ -39,7 +40,8 @@ def ssim(image: np.ndarray, reference: np.ndarray) -> float:
         gaussian_weights=True, sigma=1.5, use_sample_covariance=False))
 
 
-def composite_background(image: np.ndarray, mask: np.ndarray, background=(1.0, 1.0, 1.0)) -> np.ndarray:
+def composite_background(image: np.ndarray, mask: np.ndarray, background: npt.ArrayLike = (1.0, 1.0,
+                         1.0)) -> np.ndarray:
     """`image` inside `mask` (H, W) in [0, 1], `background` outside: image * m + bg * (1 - m)."""
     m = np.clip(np.asarray(mask, np.float64), 0.0, 1.0)[..., None]
     return np.asarray(image, np.float64) * m + np.asarray(background, np.float64) * (1.0 - m)
@@ -87,7 +89,8 @@ class Scores:
     masked: bool
 
 
-def score(render: np.ndarray, capture: np.ndarray, mask: np.ndarray | None = None, background=(1.0, 1.0, 1.0),
+def score(render: np.ndarray, capture: np.ndarray, mask: np.ndarray | None = None, background: npt.ArrayLike = (1.0,
+          1.0, 1.0),
           lpips_net: Lpips | None = None) -> Scores:
     """PSNR, SSIM (and LPIPS) of `render` against `capture`; with `mask`, both composited on `background`."""
     if mask is not None:

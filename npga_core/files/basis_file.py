@@ -11,6 +11,7 @@ import numpy as np
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
 from npga_core.files.untrusted import read_npz, real_floats
+from npga_core.model.avatar import Avatar
 from npga_core.model.blendshapes import BlendshapeBasis
 
 MAX_BASIS_BYTES = 64 * 2**20
@@ -24,7 +25,7 @@ def save_basis(basis: BlendshapeBasis, path: str | Path) -> None:
     atomic_write(Path(path), lambda fh: fh.write(buf.getvalue()))
 
 
-def attach_basis(avatar, path: str | Path) -> BlendshapeBasis:
+def attach_basis(avatar: Avatar, path: str | Path) -> BlendshapeBasis:
     """Read the basis at `path` and give it to `avatar` (replacing its own); AvatarFileError in one line when it
     does not fit the avatar's expression code."""
     from npga_core.files.blendshapes_field import fits

@@ -18,7 +18,7 @@ import datetime as _dt
 import json
 import math
 from pathlib import Path
-from typing import Any
+from typing import IO, Any
 
 import numpy as np
 
@@ -211,7 +211,7 @@ def save_avatar(avatar: Avatar, path: str | Path, provenance: dict | None = None
     data_start = _align(16 + len(text))
     text += b" " * (data_start - 16 - len(text))
 
-    def write(fh) -> None:
+    def write(fh: IO[bytes]) -> None:
         fh.write(MAGIC)
         fh.write(len(text).to_bytes(8, "little"))
         fh.write(text)
@@ -289,7 +289,7 @@ def _read_header(path: Path) -> tuple[dict, int]:
     return header, data_start
 
 
-def _header_length(fh, size: int) -> int:
+def _header_length(fh: IO[bytes], size: int) -> int:
     """The header length after the signature, checked against the file size."""
     magic = fh.read(8)
     if magic != MAGIC[: len(magic)] or len(magic) < 8:
@@ -357,7 +357,7 @@ def _check_blendshapes(header: dict) -> None:
             raise _Invalid(str(e)) from None
 
 
-def _blendshapes_of(header: dict, t: dict[str, np.ndarray], dynamics) -> Any:
+def _blendshapes_of(header: dict, t: dict[str, np.ndarray], dynamics: Dynamics | None) -> Any:
     entry = blendshapes_field.header_entry(header)
     if entry is None:
         return None

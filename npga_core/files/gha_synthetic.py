@@ -12,6 +12,7 @@ ranges.
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import torch
@@ -92,7 +93,7 @@ def gha_state_dicts(n: int = 2000, seed: int = 0, feature_dim: int = FEATURE_DIM
     return state, supres
 
 
-def write_gha_folder(folder: str | Path, n: int = 2000, seed: int = 0, supres: bool = True, **kw) -> Path:
+def write_gha_folder(folder: str | Path, n: int = 2000, seed: int = 0, supres: bool = True, **kw: Any) -> Path:
     """Write `gaussianhead_latest` (and `supres_latest`) as GHA's Recorder does (torch.save of state dicts)."""
     folder = Path(folder)
     folder.mkdir(parents=True, exist_ok=True)

@@ -27,6 +27,9 @@ bounded member count and sizes), then only the two members needed, each within i
 
 from __future__ import annotations
 
+from pathlib import Path
+from typing import Any
+
 import numpy as np
 
 from npga_core.errors import AvatarFileError
@@ -84,7 +87,7 @@ def is_zip(head: bytes) -> bool:
     return head.startswith(ZIP_MAGIC) or head.startswith(b"PK\x05\x06")
 
 
-def avatar_folder(path, names: list[str]) -> str:
+def avatar_folder(path: str | Path, names: list[str]) -> str:
     """The folder (with its trailing '/', or '' at the top) holding offset.ply and skin.glb."""
     folders = {n[: -len("offset.ply")] for n in names if n.endswith("offset.ply") and n.rsplit("/", 1)[-1] ==
                "offset.ply"}
@@ -98,7 +101,7 @@ def avatar_folder(path, names: list[str]) -> str:
     return found[0]
 
 
-def read_lam_zip(path) -> Avatar:
+def read_lam_zip(path: str | Path) -> Avatar:
     """The LAM avatar in zip `path`; AvatarFileError (one line) for anything wrong."""
     names = zip_member_names(path, MAX_MEMBERS, "a LAM avatar zip")
     folder = avatar_folder(path, names)
@@ -156,7 +159,8 @@ def read_skin(data: bytes) -> LamSkin:
     return LamSkin(pos, names, sparse, head, len(joints), has_hip)
 
 
-def _morph_targets(arrays: GltfArrays, mesh, prim, n: int) -> tuple[list[str], list[tuple[np.ndarray, np.ndarray]]]:
+def _morph_targets(arrays: GltfArrays, mesh: Any, prim: Any, n: int) -> tuple[list[str], list[tuple[np.ndarray,
+                   np.ndarray]]]:
     """The morph targets' names (mesh.extras.targetNames) and sparse POSITION deltas."""
     targets = list(prim.targets or [])
     extras = mesh.extras if isinstance(mesh.extras, dict) else {}
@@ -182,7 +186,7 @@ def _morph_targets(arrays: GltfArrays, mesh, prim, n: int) -> tuple[list[str], l
     return list(names), sparse
 
 
-def _head_matrix(arrays: GltfArrays, skin, joints: list) -> np.ndarray:
+def _head_matrix(arrays: GltfArrays, skin: Any, joints: list) -> np.ndarray:
     """matrixWorld x inverseBindMatrix of the joint named 'head' (what the player's shader applies)."""
     parent = arrays.parents()
     heads = [j for j, node_i in enumerate(joints) if isinstance(node_i, int) and 0 <= node_i < len(arrays.nodes)

@@ -38,6 +38,7 @@ import stat
 import zipfile
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 
@@ -224,7 +225,7 @@ class _Glb:
         self.accessors.append(acc)
         return len(self.accessors) - 1
 
-    def save(self, doc) -> bytes:
+    def save(self, doc: Any) -> bytes:
         doc.accessors, doc.bufferViews = self.accessors, self.views
         doc.buffers = [self.g.Buffer(byteLength=len(self.blob))]
         doc.set_binary_blob(bytes(self.blob))
@@ -232,7 +233,7 @@ class _Glb:
         return b"".join(out) if isinstance(out, list) else bytes(out)
 
 
-def _bones(g) -> tuple[list, int, int]:
+def _bones(g: Any) -> tuple[list, int, int]:
     """The skeleton's nodes (root, hip, head) and the hip's and head's indices."""
     root = g.Node(name="Armature", children=[1, 3])
     hip = g.Node(name="hip", translation=list(HIP_AT), children=[2])

@@ -11,6 +11,7 @@ from __future__ import annotations
 import io
 import re
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 
@@ -48,7 +49,7 @@ class _Bad(Exception):
 _Elements = list[tuple[str, int, list[tuple[str, str]]]]
 
 
-def _parse_header(fh) -> tuple[str, _Elements, int]:
+def _parse_header(fh: IO[bytes]) -> tuple[str, _Elements, int]:
     first = fh.readline(64)
     if first.rstrip(b"\r\n") != b"ply":
         raise _Bad("not a PLY file (first line is not 'ply')")
@@ -155,7 +156,7 @@ def _read_ply(path: Path, extra: tuple[str, ...] = (), found: dict | None = None
         return _read_stream(fh, size, extra, found)
 
 
-def _read_stream(fh, size: int, extra: tuple[str, ...] = (), found: dict | None = None) -> GaussianCloud:
+def _read_stream(fh: IO[bytes], size: int, extra: tuple[str, ...] = (), found: dict | None = None) -> GaussianCloud:
     fmt, elements, header_len = _parse_header(fh)
     n, props = _vertex_element(elements)
     names = [p for p, _ in props]
@@ -188,7 +189,7 @@ def _vertex_element(elements: _Elements) -> tuple[int, list[tuple[str, str]]]:
     return n, props
 
 
-def _ascii_columns(fh, n: int, names: list[str]) -> dict[str, np.ndarray]:
+def _ascii_columns(fh: IO[bytes], n: int, names: list[str]) -> dict[str, np.ndarray]:
     if n == 0:
         return {name: np.zeros(0) for name in names}
     try:
@@ -200,7 +201,8 @@ def _ascii_columns(fh, n: int, names: list[str]) -> dict[str, np.ndarray]:
     return {name: rows[:, i] for i, name in enumerate(names)}
 
 
-def _binary_columns(fh, fmt: str, n: int, props: list[tuple[str, str]], available: int) -> dict[str, np.ndarray]:
+def _binary_columns(fh: IO[bytes], fmt: str, n: int, props: list[tuple[str, str]], available: int) -> dict[str,
+                    np.ndarray]:
     end = "<" if fmt == "binary_little_endian" else ">"
     dt = np.dtype([(p, end + t) for p, t in props])
     if available < n * dt.itemsize:
@@ -281,7 +283,7 @@ def write_ply(path: str | Path, means: np.ndarray, quats: np.ndarray, log_scales
     header = "ply\nformat binary_little_endian 1.0\n"
     header += "comment written by npga-view\n"
     header += f"element vertex {n}\n" + "".join(f"property float {f}\n" for f in fields) + "end_header\n"
-    def write(fh) -> None:
+    def write(fh: IO[bytes]) -> None:
         fh.write(header.encode("ascii"))
         fh.write(data.tobytes())
 

@@ -21,6 +21,7 @@ from __future__ import annotations
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from npga_core.errors import AvatarFileError
 from npga_core.files.untrusted import MAX_POSITION
@@ -38,7 +39,7 @@ GAUSSIAN_AVATARS = ("GaussianAvatars: x_world = R x + t, rotation about the orig
 AGREE_TOL = 1e-3
 
 
-def finite_rows(a, t: int, width: int, path: str | Path, key: str) -> np.ndarray:
+def finite_rows(a: npt.ArrayLike, t: int, width: int, path: str | Path, key: str) -> np.ndarray:
     """`a` as (T, width) float64, from (T, width) or T * width values; AvatarFileError otherwise or if it has
     NaN/Inf values."""
     a = np.asarray(a)
@@ -55,7 +56,7 @@ def finite_rows(a, t: int, width: int, path: str | Path, key: str) -> np.ndarray
     return a
 
 
-def frame_scales(scale, t: int, path: str | Path, key: str = "scale") -> np.ndarray:
+def frame_scales(scale: npt.ArrayLike, t: int, path: str | Path, key: str = "scale") -> np.ndarray:
     """Per-frame scales (T,): T values, or one value for the whole sequence (shape (), (1,) or (1, 1))
     broadcast; each finite and > 0."""
     a = np.asarray(scale)
@@ -76,7 +77,7 @@ def frame_scales(scale, t: int, path: str | Path, key: str = "scale") -> np.ndar
     return a
 
 
-def checked_rotations(m, t: int, path: str | Path, key: str) -> np.ndarray:
+def checked_rotations(m: npt.ArrayLike, t: int, path: str | Path, key: str) -> np.ndarray:
     """Rotation matrices (T, 3, 3) from (T, 3, 3) or (1, 3, 3) values: finite, orthonormal within
     `rotations.ORTHONORMAL_TOL` with determinant +1, returned as the nearest exact rotations."""
     m = np.asarray(m)
@@ -96,7 +97,8 @@ def checked_rotations(m, t: int, path: str | Path, key: str) -> np.ndarray:
     return rotations.nearest_rotation(m)
 
 
-def similarity_pose(rotation, translation, scale, t: int, path: str | Path) -> np.ndarray:
+def similarity_pose(rotation: npt.ArrayLike | None, translation: npt.ArrayLike | None,
+                    scale: npt.ArrayLike | None, t: int, path: str | Path) -> np.ndarray:
     """x_world = s R x + t from axis-angle `rotation` (T, 3), `translation` (T, 3), `scale` (T,) or one value;
     a part that is None is the identity. npga-view's old `.npzseq` meaning."""
     r = None if rotation is None else rotations.matrix_from_rotvec(finite_rows(rotation, t, 3, path, "rotation"))
@@ -105,7 +107,8 @@ def similarity_pose(rotation, translation, scale, t: int, path: str | Path) -> n
     return np.broadcast_to(rotations.similarity(r, tr, s), (t, 4, 4)).copy()
 
 
-def mononphm_pose(rot, trans, scale, t: int, path: str | Path) -> np.ndarray:
+def mononphm_pose(rot: npt.ArrayLike | None, trans: npt.ArrayLike | None, scale: npt.ArrayLike | None, t: int,
+                  path: str | Path) -> np.ndarray:
     """MonoNPHM's world -> NPHM pose inverted: x_world = R^T (x - t) / s. `rot` is (T, 3, 3) matrices (what
     the tracker saves, `so3_exp_map` of its parameters) or (T, 3) axis-angle (which its loader also takes);
     a part that is None is the identity."""
@@ -121,7 +124,8 @@ def mononphm_pose(rot, trans, scale, t: int, path: str | Path) -> np.ndarray:
     return np.linalg.inv(world_to_nphm)
 
 
-def nersemble_pose(euler, matrices, translation, scale, t: int, path: str | Path) -> np.ndarray:
+def nersemble_pose(euler: npt.ArrayLike, matrices: npt.ArrayLike | None, translation: npt.ArrayLike,
+                   scale: npt.ArrayLike, t: int, path: str | Path) -> np.ndarray:
     """NeRSemble FLAME tracking: x_world = s R x + t with R from `rotation_matrices` when present (checked to
     agree with the intrinsic Euler XYZ `rotation` within AGREE_TOL), else from the Euler angles."""
     r_euler = rotations.matrix_from_euler(finite_rows(euler, t, 3, path, "rotation"), "XYZ")
@@ -136,14 +140,14 @@ def nersemble_pose(euler, matrices, translation, scale, t: int, path: str | Path
     return rotations.similarity(r, finite_rows(translation, t, 3, path, "translation"), frame_scales(scale, t, path))
 
 
-def gaussian_avatars_pose(rotation, translation, t: int, path: str | Path) -> np.ndarray:
+def gaussian_avatars_pose(rotation: npt.ArrayLike, translation: npt.ArrayLike, t: int, path: str | Path) -> np.ndarray:
     """GaussianAvatars' FLAME rotation (axis-angle) and translation, the rotation about the origin (the root
     joint FLAME rotates about needs FLAME's regressor and shape): x_world = R x + t."""
     r = rotations.matrix_from_rotvec(finite_rows(rotation, t, 3, path, "rotation"))
     return rotations.similarity(r, finite_rows(translation, t, 3, path, "translation"))
 
 
-def checked_pose(pose, t: int, path: str | Path) -> np.ndarray:
+def checked_pose(pose: npt.ArrayLike, t: int, path: str | Path) -> np.ndarray:
     """A stored pose (T, 4, 4) as float64 after the checks: T frames, finite, similarity transforms."""
     a = np.asarray(pose)
     if a.dtype.kind not in "fiu":

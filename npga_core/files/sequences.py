@@ -14,6 +14,7 @@ from dataclasses import InitVar, dataclass, field
 from pathlib import Path
 
 import numpy as np
+import numpy.typing as npt
 
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
@@ -47,7 +48,8 @@ class ExpressionSequence:
     notes: list[str] = field(default_factory=list)  # one-line notices of the reader (unmatched shapes, gaps)
     flame: dict[str, np.ndarray] | None = None  # GaussianAvatars: the frames' FLAME inputs (expr, rotation, ...)
 
-    def __post_init__(self, rotation, translation, scale) -> None:
+    def __post_init__(self, rotation: npt.ArrayLike | None, translation: npt.ArrayLike | None,
+                      scale: npt.ArrayLike | None) -> None:
         if rotation is None and translation is None and scale is None:
             return
         if self.pose is not None:

@@ -6,6 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass, field, replace
 
 import numpy as np
+import numpy.typing as npt
 
 from npga_core.camera.cameras import Camera
 from npga_core.model.gaussians import SH_C0, PosedGaussians, rgb_to_sh0
@@ -90,14 +91,14 @@ def in_range(values: np.ndarray, lo: float, hi: float) -> np.ndarray:
     return (v >= min(lo, hi)) & (v <= max(lo, hi))
 
 
-def clip_box(means: np.ndarray, lo, hi) -> np.ndarray:
+def clip_box(means: np.ndarray, lo: npt.ArrayLike, hi: npt.ArrayLike) -> np.ndarray:
     """Centres inside the axis-aligned box [lo, hi] (world units, boundary included): the ones kept."""
     m = np.asarray(means, dtype=np.float64)
     a, b = np.asarray(lo, np.float64), np.asarray(hi, np.float64)
     return np.all((m >= np.minimum(a, b)) & (m <= np.maximum(a, b)), axis=1)
 
 
-def clip_plane(means: np.ndarray, point, normal) -> np.ndarray:
+def clip_plane(means: np.ndarray, point: npt.ArrayLike, normal: npt.ArrayLike) -> np.ndarray:
     """Centres on the side of the plane through `point` that `normal` points to (boundary included): kept."""
     n = np.asarray(normal, np.float64)
     if not np.linalg.norm(n) > 0:

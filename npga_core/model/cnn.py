@@ -16,6 +16,7 @@ Two descriptions, one module:
 from __future__ import annotations
 
 import math
+from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
 
 import numpy as np
@@ -219,7 +220,7 @@ class ScreenCNN(nn.Module):
             h = step
         return h
 
-    def steps(self, x: torch.Tensor):
+    def steps(self, x: torch.Tensor) -> Iterator[torch.Tensor]:
         """The forward pass one operation at a time: yields the activations after each (the output last), so a
         caller can stop between operations."""
         h = x
@@ -267,7 +268,7 @@ class ScreenCNN(nn.Module):
 
 
 @torch.no_grad()
-def run_cnn_steps(cnn: ScreenCNN, image: np.ndarray, cancelled) -> np.ndarray | None:
+def run_cnn_steps(cnn: ScreenCNN, image: np.ndarray, cancelled: Callable[[], bool]) -> np.ndarray | None:
     """`run_cnn` on the CNN's device one operation at a time; None as soon as `cancelled()` is true between two
     operations (for CNNs that cannot run in bands: a refinement the view has left stops within one operation)."""
     x = torch.from_numpy(np.ascontiguousarray(image, dtype=np.float32)).permute(2, 0, 1)[None]

@@ -278,7 +278,7 @@ class Dynamics(nn.Module):
     def simple(self) -> bool:
         """Expressible in format version 1 (F and/or G of the fixed architecture, no blend, no condition)."""
         return (self.rig is None and len(self.nets) > 0
-                and set(self.nets) <= {"F", "G"} and all(n.config.simple for n in self.nets.values())  # type: ignore[union-attr]
+                and set(self.nets) <= {"F", "G"} and all(n.config.simple for n in self.networks().values())
                 and self.rules["rotation"] in ("compose", "add")
                 and all(r == RULES[a][0] for a, r in self.rules.items() if a != "rotation")
                 and (self.F is None or [n for n, _ in self.F.config.outputs] == ["position"]))

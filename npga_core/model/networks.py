@@ -366,6 +366,11 @@ class ConditionedMLP(nn.Module):
         self._ccols = torch.tensor(c, dtype=torch.int64)
         self._contiguous = g == list(range(len(g))) and c == list(range(len(g), len(g) + len(c)))
 
+    @property
+    def output_act(self) -> Callable[[torch.Tensor], torch.Tensor] | None:
+        """The activation after the last layer (None for "none"), for callers that run the layers themselves."""
+        return self._out_act
+
     # -- input conditioning -------------------------------------------------------------------------
     def _encode(self, parts: dict[str, torch.Tensor], per_gaussian: bool) -> torch.Tensor:
         """Normalised, encoded inputs of one side (per Gaussian or per frame), in declared order."""

@@ -18,6 +18,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
+from typing import IO
 
 import numpy as np
 import torch
@@ -147,7 +148,7 @@ class BakeStore:
         text = json.dumps(header).encode()
         text += b" " * ((-(len(BAKE_MAGIC) + 8 + len(text))) % _ALIGN)
 
-        def write(fh) -> None:
+        def write(fh: IO[bytes]) -> None:
             fh.write(BAKE_MAGIC + len(text).to_bytes(8, "little") + text)
             fh.write(np.ascontiguousarray(self.lo).tobytes())
             fh.write(np.ascontiguousarray(self.step).tobytes())

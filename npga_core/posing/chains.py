@@ -212,8 +212,8 @@ class Chain:
         """The output activation, in place."""
         if self.out_act == "tanh":
             dest.tanh_()
-        elif self.out_act != "none":
-            dest.copy_(self.net._out_act(dest))  # type: ignore[misc]
+        elif (act := self.net.output_act) is not None:
+            dest.copy_(act(dest))
 
     def _layer(self, i: int, h: torch.Tensor, target: torch.Tensor, encoded: torch.Tensor | None,
                skip_consts: dict[int, torch.Tensor] | None, last: bool) -> torch.Tensor:

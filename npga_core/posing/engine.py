@@ -33,6 +33,7 @@ import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
 from multiprocessing import shared_memory
+from typing import Any
 
 import numpy as np
 
@@ -55,7 +56,7 @@ from npga_core.posing.messages import (  # noqa: F401  (EngineOptions, BakeStatu
     StatusReply,
     peak_rss_mb,
 )
-from npga_core.posing.worker import _worker
+from npga_core.posing.worker import worker_main
 
 
 @dataclass
@@ -86,7 +87,7 @@ class PoseEngine:
     """
 
     def __init__(self, path: str, n: int, sh_coeffs: int, latent_dim: int, threads: int = 2,
-                 options: EngineOptions | None = None, **kw):
+                 options: EngineOptions | None = None, **kw: Any) -> None:
         self.options = options or EngineOptions(**kw)
         self.layout = Layout(n, sh_coeffs, latent_dim)
         nbytes = max(4, self.layout.floats * 4)
@@ -104,7 +105,7 @@ class PoseEngine:
         self.bake_status: BakeStatus | None = None
         self._bake_id = 0  # number of the newest bake or cancel request
         self.worker_peak_rss_mb = 0.0
-        self._proc = ctx.Process(target=_worker, daemon=True, name="npga-pose-worker",
+        self._proc = ctx.Process(target=worker_main, daemon=True, name="npga-pose-worker",
                                  args=(path, self.layout, [s.name for s in self._shms], self._slots, self._req,
                                        self._res, threads, self.options, os.getpid()))
         # stops the worker and unlinks the slots when close() is called, the engine is dropped, or the
@@ -249,6 +250,6 @@ class PoseEngine:
     def __enter__(self) -> PoseEngine:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()
 

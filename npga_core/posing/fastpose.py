@@ -34,12 +34,12 @@ from npga_core.posing.device import resolve_device
 from npga_core.posing.poserows import (
     OffsetLayout,
     RowSet,
-    _attribute_major,
-    _compose,
-    _encoding_key,
-    _unit,
+    attribute_major,
+    compose_rotation_rows,
+    encoding_key,
     posed_buffers,
     support_span,
+    unit_rows,
 )
 from npga_core.posing.precision import bf16_native, check_precision
 
@@ -52,8 +52,9 @@ __all__ = ["KERNELS", "FastPoser", "OffsetLayout", "RowSet", "onednn_available",
 
 
 @dataclass
-class _Lane:
-    """One thread's scratch: its own copy of every chain's buffers, an offset chunk and a network output chunk."""
+class Lane:
+    """One thread's scratch: its own copy of every chain's buffers, an offset chunk and a network output chunk
+    (handed to the bodies that `FastPoser.parallel` runs; `index` tells a body which lane's buffers to use)."""
 
     index: int
     chains: dict[str, Chain]
@@ -143,13 +144,13 @@ class FastPoser:
         # initializer each lane's GEMM forks its own team, lanes x cores threads on the cores (~20 % slower)
         self._pool = ThreadPoolExecutor(self.threads - 1, "fastpose", initializer=torch.set_num_threads,
                                         initargs=(1,)) if self.threads > 1 else None
-        self._enc_key = {key: _encoding_key(net) for key, net in self.nets.items()}
-        chains = self._lanes[0].chains
+        self._enc_key = {key: encoding_key(net) for key, net in self.nets.items()}
+        chains = self.chains
         share = {k: (spans[k][1] - spans[k][0]) / max(self.n, 1) if k in spans else 1.0 for k in chains}
         self.flops_per_gaussian = sum(c.flops_per_row * share[k] for k, c in chains.items())
         if first_layer == "recompute" or self.precision == "bf16":
             self.flops_per_gaussian += sum(2 * c.first_weight.numel() * share[k] for k, c in chains.items())
-        self._soa = _attribute_major(self.canonical)
+        self._soa = attribute_major(self.canonical)
         small = [(k, self.layout.blocks[k]) for k in SMALL_BLOCKS if k in self.layout.blocks]
         self._small: dict[str, tuple[int, int]] = {}
         cols: list[int] = []
@@ -187,7 +188,7 @@ class FastPoser:
             out[key] = block
         return out
 
-    def _lane(self, index: int, low: bool) -> _Lane:
+    def _lane(self, index: int, low: bool) -> Lane:
         """A lane's chains and buffers, in bfloat16 (`low`) or float32."""
         dtype = torch.bfloat16 if low else torch.float32
         chains = {k: Chain(n, self.chunk, self.device,
@@ -196,7 +197,7 @@ class FastPoser:
                   for k, n in self.nets.items()}
         width = max((c.scratch_width for c in chains.values()), default=1)
         out_width = max((n.config.out_dim for n in self.nets.values()), default=1)
-        return _Lane(index, chains, torch.empty(self.chunk, self.layout.width, device=self.device),
+        return Lane(index, chains, torch.empty(self.chunk, self.layout.width, device=self.device),
                      Scratch(self.chunk, width, self.device), torch.empty(self.chunk * out_width, device=self.device))
 
     @torch.no_grad()
@@ -299,14 +300,14 @@ class FastPoser:
         terms: dict[str, tuple] = {}
         if self.rig is not None:  # the rig's per-frame part (runtime weights; a skin's face motions) once a frame
             terms[RIG] = (self.rig.frame(zfull[dynamics.network_dim :]),)
-        chains = self._lanes[0].chains
+        chains = self.chains
         for key, net in self.nets.items():
             t = net.code_term(zt)
             consts = chains[key].frame_constants(net.encode_code(zt)) if net.config.skips else None
             terms[key] = (t, net.layers[0].bias.detach() + t, consts)  # type: ignore[operator]
         return terms
 
-    def _chunk_offsets(self, lane: _Lane, rows: RowSet, terms: dict, s: int, e: int,
+    def _chunk_offsets(self, lane: Lane, rows: RowSet, terms: dict, s: int, e: int,
                        cancel: Callable[[], bool] | None = None,
                        into: torch.Tensor | None = None) -> torch.Tensor | None:
         """Combined offsets (e - s, width) of rows s:e of `rows`, in `into` (on the poser's device) or else the
@@ -337,7 +338,7 @@ class FastPoser:
             t, bias, consts = terms[key]
             dest = lane.net_out[: (hi - lo) * net.config.out_dim].view(hi - lo, net.config.out_dim)
             chain.run(first, enc, t, bias, lane.scratch, dest, consts, low)
-            self._route(key, dest, rows, lo, hi, out_rows[lo - s : hi - s])
+            self.route(key, dest, rows, lo, hi, out_rows[lo - s : hi - s])
             lane.busy[key] = lane.busy.get(key, 0.0) + time.perf_counter() - t0
         if self.rig is not None:
             t0 = time.perf_counter()
@@ -348,8 +349,15 @@ class FastPoser:
             lane.busy[RIG] = lane.busy.get(RIG, 0.0) + time.perf_counter() - t0
         return out_rows
 
-    def _route(self, key: str, out: torch.Tensor, rows: RowSet, lo: int, hi: int, dest: torch.Tensor) -> None:
-        """Add network `key`'s outputs of rows lo:hi (scaled, times its blend weight) into offset rows `dest`."""
+    @property
+    def chains(self) -> dict[str, Chain]:
+        """Each network's compiled chain (weights, biases, activations) as the first lane runs it."""
+        return self._lanes[0].chains
+
+    def route(self, key: str, out: torch.Tensor, rows: RowSet, lo: int, hi: int, dest: torch.Tensor) -> None:
+        """Add network `key`'s outputs of rows lo:hi of `rows` (scaled, times its blend weight) into offset rows
+        `dest`, where the layout puts each output (for callers that run a network their own way, as the
+        previews' bf16 probes)."""
         weight = rows.weights.get(key)
         w = None if weight is None else weight[lo:hi, None]
         for r in self.nets[key].config.routes or []:
@@ -361,16 +369,17 @@ class FastPoser:
             else:
                 target.addcmul_(part, w, value=r.scale)
 
-    def _parallel(self, tasks: list[int], body: Callable[[_Lane, int], bool | None],
+    def parallel(self, tasks: list[int], body: Callable[[Lane, int], bool | None],
                   cancel: Callable[[], bool] | None = None, timings: dict[str, float] | None = None) -> bool:
-        """Run `body(lane, task)` for every task on all lanes (each lane pulls the next task); False if
-        `cancel()` turned true before some task or a body returned False. Per-stage busy times, divided by the
-        lanes, go to `timings`."""
+        """Run `body(lane, task)` for every task on all lanes (each lane pulls the next task; each operation
+        runs on one thread); False if `cancel()` turned true before some task or a body returned False.
+        Per-stage busy times, divided by the lanes, go to `timings`. Callers outside (posing/preview.py) split
+        their rows with `chunk_for`."""
         pending = iter(tasks)
         lock = threading.Lock()
         stop = [False]
 
-        def work(lane: _Lane) -> None:
+        def work(lane: Lane) -> None:
             torch.set_grad_enabled(False)
             while True:
                 with lock:
@@ -401,10 +410,11 @@ class FastPoser:
         return not stop[0]
 
     def _starts(self, n: int) -> list[int]:
-        return list(range(0, n, self._chunk_for(n)))
+        return list(range(0, n, self.chunk_for(n)))
 
-    def _chunk_for(self, n: int) -> int:
-        """Rows per task: the chunk size, smaller for small row sets so that every lane gets work."""
+    def chunk_for(self, n: int) -> int:
+        """Rows per task of `parallel` for `n` rows: the chunk size, smaller for small row sets so that every
+        lane gets work."""
         return max(1, min(self.chunk, -(-n // self.threads)))
 
     def subset(self, index: np.ndarray) -> RowSet:
@@ -431,7 +441,7 @@ class FastPoser:
     def reach(self) -> float:
         """The share of the work of every network on every row that the exact path does (1 without blended
         networks; less where blended networks run only on the rows they reach)."""
-        chains = self._lanes[0].chains
+        chains = self.chains
         full = sum(c.flops_per_row for c in chains.values())
         share = {k: (b - a) / max(self.n, 1) for k, (a, b) in self.rows.spans.items()}
         return sum(c.flops_per_row * share.get(k, 1.0) for k, c in chains.items()) / max(full, 1)
@@ -446,18 +456,18 @@ class FastPoser:
         if out is None:
             out = torch.empty(rows.n, self.layout.width)
         terms = self.code_terms(z)
-        step = self._chunk_for(rows.n)
+        step = self.chunk_for(rows.n)
 
         direct = out.device == self.device  # the networks write straight into `out`, else through the lane
 
-        def body(lane: _Lane, s: int) -> bool:
+        def body(lane: Lane, s: int) -> bool:
             e = min(rows.n, s + step)
             chunk = self._chunk_offsets(lane, rows, terms, s, e, cancel, out[s:e] if direct else None)
             if chunk is not None and not direct:
                 out[s:e].copy_(chunk)
             return chunk is not None
 
-        return out if self._parallel(self._starts(rows.n), body, cancel, timings) else None
+        return out if self.parallel(self._starts(rows.n), body, cancel, timings) else None
 
     # -- posing --------------------------------------------------------------------------------------------
     @torch.no_grad()
@@ -470,9 +480,9 @@ class FastPoser:
         """
         terms = self.code_terms(z)
         out = {k: torch.from_numpy(v) for k, v in dest.items() if v is not None}
-        step = self._chunk_for(self.n)
+        step = self.chunk_for(self.n)
 
-        def body(lane: _Lane, s: int) -> bool:
+        def body(lane: Lane, s: int) -> bool:
             e = min(self.n, s + step)
             rows = self._chunk_offsets(lane, self.rows, terms, s, e, cancel)
             if rows is None:
@@ -484,7 +494,7 @@ class FastPoser:
             lane.busy["apply"] = lane.busy.get("apply", 0.0) + time.perf_counter() - t0
             return True
 
-        done = self._parallel(self._starts(self.n), body, cancel, timings)
+        done = self.parallel(self._starts(self.n), body, cancel, timings)
         if done:
             self._finish(out)
         return done
@@ -494,11 +504,11 @@ class FastPoser:
         """Posed cloud from precomputed combined offsets (N, width) on the CPU, written into `dest`."""
         out = {k: torch.from_numpy(v) for k, v in dest.items() if v is not None}
 
-        def body(lane: _Lane, s: int) -> None:
+        def body(lane: Lane, s: int) -> None:
             e = min(self.n, s + chunk)
             self.apply_rows(offsets[s:e].to(self.device), s, e, out)
 
-        self._parallel(list(range(0, self.n, chunk)), body)
+        self.parallel(list(range(0, self.n, chunk)), body)
         self._finish(out)
 
     def _finish(self, out: dict[str, torch.Tensor]) -> None:
@@ -552,11 +562,11 @@ class FastPoser:
         if d is None:
             return self._soa["unit_quats"][:, s:e]
         if rule == "compose":
-            return _unit(_compose(self._soa["unit_quats"][:, s:e], d))
+            return unit_rows(compose_rotation_rows(self._soa["unit_quats"][:, s:e], d))
         if rule == "add":
-            return _unit(self._soa["unit_quats"][:, s:e] + d)
+            return unit_rows(self._soa["unit_quats"][:, s:e] + d)
         raw = self._soa["quats"][:, s:e] + d
-        return raw if rule == "add_raw_legacy" else _unit(raw)
+        return raw if rule == "add_raw_legacy" else unit_rows(raw)
 
     def _add_wide(self, rows: torch.Tensor, s: int, e: int, name: str, dest: torch.Tensor,
                   cols: tuple[int, int] | None) -> None:

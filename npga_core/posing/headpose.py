@@ -16,6 +16,7 @@ moves centres, rotations, scales and turns the SH with the head (`sh.rotate_sh`)
 
 from __future__ import annotations
 
+from collections.abc import Iterable
 from typing import TypeGuard
 
 import numpy as np
@@ -57,7 +58,7 @@ def head_transform(seq: ExpressionSequence, frame: int, relative: bool = True) -
     return np.linalg.solve(np.asarray(seq.pose[0], np.float64), m) if relative else m.copy()
 
 
-def head_transforms(seq: ExpressionSequence, frames, mode: str, source: object) -> list[np.ndarray]:
+def head_transforms(seq: ExpressionSequence, frames: Iterable[int], mode: str, source: object) -> list[np.ndarray]:
     """Head transforms of `frames` for a CLI's --head-pose `mode` ("relative" or "absolute"); ValueError
     naming `source` if the sequence carries no pose."""
     if not has_head_pose(seq):

@@ -285,5 +285,5 @@ class LiveLinkReceiver:
     def __enter__(self) -> LiveLinkReceiver:
         return self
 
-    def __exit__(self, *exc) -> None:
+    def __exit__(self, *exc: object) -> None:
         self.close()

@@ -37,7 +37,10 @@ class Layout:
     def floats(self) -> int:
         return sum(int(np.prod(s)) for s in self.shapes().values())
 
-    def views(self, buf) -> dict[str, np.ndarray]:
+    def views(self, buf: memoryview | None) -> dict[str, np.ndarray]:
+        """Arrays of this layout over a shared-memory block's buffer (None: the block is closed, an error)."""
+        if buf is None:
+            raise ValueError("the shared-memory block is closed")
         flat = np.ndarray((self.floats,), dtype=np.float32, buffer=buf)
         out, o = {}, 0
         for name, shape in self.shapes().items():

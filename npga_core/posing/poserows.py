@@ -73,7 +73,7 @@ def support_span(weight: np.ndarray) -> tuple[int, int] | None:
     return (int(nz[0]), int(nz[-1]) + 1) if nz[-1] - nz[0] + 1 == len(nz) else None
 
 
-def _encoding_key(net: ConditionedMLP) -> tuple:
+def encoding_key(net: ConditionedMLP) -> tuple:
     """Networks with equal keys encode (mu, f) identically (same per-Gaussian inputs, order, encodings and
     normalisation)."""
     c, key, col = net.config, [], 0
@@ -86,7 +86,7 @@ def _encoding_key(net: ConditionedMLP) -> tuple:
     return tuple(key)
 
 
-def _unit(q: torch.Tensor) -> torch.Tensor:
+def unit_rows(q: torch.Tensor) -> torch.Tensor:
     """Rows (4, m) of quaternions, each column scaled to unit length (as `_normalize`, clamped at 1e-12)."""
     n2 = q[0] * q[0]
     for i in range(1, q.shape[0]):
@@ -94,18 +94,18 @@ def _unit(q: torch.Tensor) -> torch.Tensor:
     return q / n2.sqrt_().clamp_min_(1e-12)
 
 
-def _compose(c_unit: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
+def compose_rotation_rows(c_unit: torch.Tensor, d: torch.Tensor) -> torch.Tensor:
     """ATTRIBUTE_OPS["rotation"] on attribute-major rows: normalize(normalize(1 + d) * c_unit)."""
     r = d.clone()
     r[0] += 1.0
-    return _unit(quat_multiply(_unit(r).t(), c_unit.t()).t())
+    return unit_rows(quat_multiply(unit_rows(r).t(), c_unit.t()).t())
 
 
-def _attribute_major(canonical: dict[str, torch.Tensor | None]) -> dict[str, torch.Tensor]:
+def attribute_major(canonical: dict[str, torch.Tensor | None]) -> dict[str, torch.Tensor]:
     """Canonical attributes with the small ones transposed to (width, N), the wide ones flattened (N, width)."""
     present = cast(dict[str, torch.Tensor], canonical)  # every attribute but the latent is always there
     soa = {k: present[k].t().contiguous() for k in ("means", "log_scales", "quats")}
-    soa["unit_quats"] = _unit(soa["quats"].clone())
+    soa["unit_quats"] = unit_rows(soa["quats"].clone())
     soa["opacity_logits"] = present["opacity_logits"].contiguous()
     soa["sh"] = present["sh"].reshape(present["sh"].shape[0], present["sh"].shape[1] * 3)
     latent = canonical.get("latent")

@@ -36,7 +36,8 @@ from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
 from npga_core.files.places import cache_folder_for
 from npga_core.files.untrusted import bounded_floats, json_dict, json_int, parse_json, read_npz, real_floats
-from npga_core.posing.fastpose import FastPoser
+from npga_core.model.avatar import Avatar
+from npga_core.posing.fastpose import FastPoser, Lane
 
 PREVIEW_FORMAT = 1
 MAX_CACHED_NEIGHBOURS = 64  # probes per Gaussian accepted from a cache file
@@ -85,7 +86,7 @@ class PreviewModel:
 
     # -- fitting -------------------------------------------------------------------------------------------
     @staticmethod
-    def sample_codes(avatar, count: int, seed: int = 0, scale: float = 1.0) -> np.ndarray:
+    def sample_codes(avatar: Avatar, count: int, seed: int = 0, scale: float = 1.0) -> np.ndarray:
         """`count` codes from the avatar's expression space (slider values ~ N(0, scale^2))."""
         rng = np.random.default_rng(seed)
         ex = avatar.expression
@@ -307,10 +308,10 @@ class ProbeNets:
         self.poser, self.precision = poser, precision
         self._layers = {}
         if precision == "bf16":
-            for key, chain in poser._lanes[0].chains.items():
+            for key, chain in poser.chains.items():
                 self._layers[key] = ([w.to(torch.bfloat16) for w in chain.weights],
                                      [b.to(torch.bfloat16) for b in chain.biases], chain.relu, chain.act,
-                                     poser.nets[key]._out_act)
+                                     poser.nets[key].output_act)
 
     @property
     def n(self) -> int:
@@ -323,9 +324,9 @@ class ProbeNets:
             return cast(torch.Tensor, self.poser.offsets(z, out=out, rows=self.rows))  # None only when cancelled
         terms = self.poser.code_terms(z)
         first = cast(dict[str, torch.Tensor], self.rows.first)
-        step = self.poser._chunk_for(self.n)
+        step = self.poser.chunk_for(self.n)
 
-        def body(lane, s: int) -> None:
+        def body(lane: Lane, s: int) -> None:
             e = min(self.n, s + step)
             out[s:e].zero_()
             for key in self.poser.nets:
@@ -337,9 +338,9 @@ class ProbeNets:
                     if i < len(weights) - 1:
                         h = h.clamp_min_(0.0) if relu else act(h)
                 h = h.float()
-                self.poser._route(key, h if out_act is None else out_act(h), self.rows, s, e, out[s:e])
+                self.poser.route(key, h if out_act is None else out_act(h), self.rows, s, e, out[s:e])
 
-        self.poser._parallel(list(range(0, self.n, step)), body)
+        self.poser.parallel(list(range(0, self.n, step)), body)
         return out
 
 
@@ -410,7 +411,7 @@ class Previewer:
         out = {k: torch.from_numpy(v) for k, v in dest.items() if v is not None}
         base = self.base
 
-        def body(lane, i: int) -> None:
+        def body(lane: Lane, i: int) -> None:
             block = self._blocks[i]
             s = i * self.chunk
             e = s + block.shape[0]
@@ -418,7 +419,7 @@ class Previewer:
             torch.add(base[s:e], torch.from_numpy(block @ delta), out=rows)
             self.poser.apply_rows(rows, s, e, out)
 
-        self.poser._parallel(list(range(len(self._blocks))), body)
+        self.poser.parallel(list(range(len(self._blocks))), body)
         if timings is not None:
             timings["probes"] = (t1 - t0) * 1e3
             timings["spread_apply"] = (time.perf_counter() - t1) * 1e3

@@ -8,10 +8,12 @@ import queue
 import signal
 import time
 import traceback
+from collections.abc import MutableSequence
 from dataclasses import asdict, dataclass
 from multiprocessing import shared_memory
+from multiprocessing.queues import Queue
 from pathlib import Path
-from typing import TYPE_CHECKING, cast
+from typing import TYPE_CHECKING, Any, cast
 
 import numpy as np
 
@@ -51,8 +53,11 @@ class _BakeJob:
     write: bool
 
 
-def _worker(path: str, layout: Layout, names: list[str], slot_state, req_q, res_q, threads: int,
-            options: EngineOptions, parent_pid: int | None = None) -> None:
+def worker_main(path: str, layout: Layout, names: list[str], slot_state: MutableSequence[int], req_q: Queue[Any],
+                res_q: Queue[Any], threads: int,
+                options: EngineOptions, parent_pid: int | None = None) -> None:
+    """The worker process's entry (the `Process` target of `PoseEngine`): open the avatar at `path`, attach the
+    shared-memory slots `names`, answer `req_q`'s requests on `res_q` until told to stop or the parent dies."""
     if parent_pid is not None:
         start_parent_watch(parent_pid, names)
     with contextlib.suppress(ValueError, AttributeError):  # Ctrl+C in a terminal reaches the whole process
@@ -70,7 +75,8 @@ def _worker(path: str, layout: Layout, names: list[str], slot_state, req_q, res_
 class _Worker:
     """The worker process's state and scheduling loop (see the module docstring)."""
 
-    def __init__(self, path: str, layout: Layout, bufs: list, slot_state, req_q, res_q, threads: int,
+    def __init__(self, path: str, layout: Layout, bufs: list, slot_state: MutableSequence[int], req_q: Queue[Any],
+                 res_q: Queue[Any], threads: int,
                  options: EngineOptions):
         import torch
 
@@ -119,7 +125,7 @@ class _Worker:
     def _interrupted(self) -> bool:
         return not self.req_q.empty()
 
-    def _handle(self, msg) -> bool:
+    def _handle(self, msg: object) -> bool:
         """Take one message; False on the stop message."""
         if msg is None:
             return False
@@ -155,7 +161,7 @@ class _Worker:
             if not self._handle(msg):
                 return False
 
-    def _send_status(self, **kw) -> None:
+    def _send_status(self, **kw: object) -> None:
         self.status.update(kw)
         self.res_q.put(StatusReply(dict(self.status)))
 
@@ -192,7 +198,7 @@ class _Worker:
                     return i
             time.sleep(0.001)
 
-    def _publish(self, req_id: int, slot: int, z: np.ndarray, timings: dict, **flags) -> None:
+    def _publish(self, req_id: int, slot: int, z: np.ndarray, timings: dict, **flags: object) -> None:
         timings["peak_rss_mb"] = peak_rss_mb()
         self.slot_state[slot] = BUSY
         self.res_q.put(PoseReply(req_id, slot, z, timings, flags))

@@ -155,11 +155,11 @@ def run(peer: Path | None, width: int, height: int, frames: int, rounds: int, sc
               "NPGA_PEER_GSV)")
         return None
     from npga_view.cli.bench_precision import cpu_name
-    from npga_view.cli.bench_window import _start_xvfb
+    from npga_view.cli.bench_window import start_xvfb
     from npga_view.imgui_glfw import glfw
     from npga_view.rendering.gl import release_current_egl
 
-    xvfb = _start_xvfb()
+    xvfb = start_xvfb()
     try:
         release_current_egl()  # a current headless context (the bench's) would make the windows' GLX fail
         if not glfw.init():

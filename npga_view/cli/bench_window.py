@@ -47,8 +47,8 @@ if TYPE_CHECKING:
 SIZE = (1360, 900)
 
 
-def _start_xvfb() -> subprocess.Popen | None:
-    """A private Xvfb when there is no DISPLAY (None when one is set)."""
+def start_xvfb() -> subprocess.Popen | None:
+    """A private Xvfb for the benchmarks when there is no DISPLAY (None when one is set); the caller stops it."""
     if os.environ.get("DISPLAY"):
         return None
     exe = shutil.which("Xvfb")
@@ -314,7 +314,7 @@ def run(gaussians: list[int], demo: bool, json_path: Path | None, moves: int = 6
     (each row's avatar says which); one table."""
     results: list[dict] = []
     lives: list[dict] = []
-    proc = _start_xvfb()  # one display for every pass
+    proc = start_xvfb()  # one display for every pass
     try:
         for load in ([0, beside_load] if beside_load > 0 else [0]):
             hogs = start_load(load)

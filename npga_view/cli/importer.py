@@ -54,8 +54,9 @@ def run(args: argparse.Namespace) -> int:
     save_avatar(avatar, out, verify=True)
     p = avatar.provenance
     g = p["groups"]
+    n_nets = len(avatar.dynamics.networks()) if avatar.dynamics is not None else 0  # (an import always has them)
     print(f"{out}: {len(avatar):,} Gaussians ({g['near']:,} near, {g['blended']:,} blended, {g['far']:,} far), "
-          f"{len(avatar.dynamics.networks())} networks, frame vector {avatar.code_dim} "  # type: ignore[union-attr]
+          f"{n_nets} networks, frame vector {avatar.code_dim} "
           f"(expression {avatar.code_dim - avatar.condition_dim} + head pose {avatar.condition_dim}), "
           f"super-resolution: {f'x{avatar.cnn.config.upsample} CNN' if avatar.cnn else 'none'}; "
           f"settings from {p['settings_from']}; rotation {p['rotation_normalisation']}")

@@ -43,12 +43,20 @@ class CompareController:
         self._opening: tuple[str, Future] | None = None
         self._lock = threading.Lock()
 
-    def handlers(self) -> dict[type, Callable]:
-        return {C.OpenCapture: self._open_capture, C.OpenAvatarB: self._open_b, C.ShowComparison: self._show,
-                C.SetCompareMode: self._mode, C.SetComparePosition: lambda a: self.view.set_position(a.t),
-                C.SetComparePair: lambda a: self.view.set_pair(a.pair), C.SetCompareScale: self._scale,
-                C.SetCompareCnn: self._cnn, C.SetCompareBackground: self._background,
-                C.StepCapture: lambda a: self.sources.step(a.frames, a.cameras)}
+    def handlers(self) -> C.Handlers:
+        """The Compare panel's actions (npga_view/actions.py), each by a typed method."""
+        h = C.Handlers()
+        h.register(C.OpenCapture, self._open_capture)
+        h.register(C.OpenAvatarB, self._open_b)
+        h.register(C.ShowComparison, self._show)
+        h.register(C.SetCompareMode, self._mode)
+        h.register(C.SetComparePosition, self._position)
+        h.register(C.SetComparePair, self._pair)
+        h.register(C.SetCompareScale, self._scale)
+        h.register(C.SetCompareCnn, self._cnn)
+        h.register(C.SetCompareBackground, self._background)
+        h.register(C.StepCapture, self._step)
+        return h
 
     # --- actions --------------------------------------------------------------------------------------
     def _open_capture(self, a: C.OpenCapture) -> None:
@@ -75,6 +83,15 @@ class CompareController:
         if a.mode not in MODES:
             raise ValueError(f"unknown compare mode {a.mode!r}")
         self.view.set_mode(a.mode)
+
+    def _position(self, a: C.SetComparePosition) -> None:
+        self.view.set_position(a.t)
+
+    def _pair(self, a: C.SetComparePair) -> None:
+        self.view.set_pair(a.pair)
+
+    def _step(self, a: C.StepCapture) -> None:
+        self.sources.step(a.frames, a.cameras)
 
     def _scale(self, a: C.SetCompareScale) -> None:
         self.view.set_scale(a.vmax)

@@ -17,6 +17,7 @@ from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
 from npga_core.files.rig import load_rig
 from npga_core.files.untrusted import json_dict, json_number, read_json
+from npga_core.model.expression import ExpressionSpace
 from npga_view import actions as A
 from npga_view.controllers.bake import BakeController
 from npga_view.controllers.host import ViewerHost
@@ -25,7 +26,7 @@ from npga_view.state import MAX_SESSION_BYTES, config_dir
 
 
 class ActionController:
-    """Owned by the app; `handlers()` is its table of action type -> method (see npga_view/actions.py).
+    """Owned by the app; `handlers()` is its typed table of action type -> method (npga_view/dispatch.py).
     `toggle_recording` is the app's recorder switch; the loaded rig cameras are kept here."""
 
     def __init__(self, host: ViewerHost, poses: PoseController, bakes: BakeController,
@@ -36,41 +37,64 @@ class ActionController:
         self.toggle_recording = toggle_recording
         self.rig: dict = {}  # camera name -> parameters of the loaded rig
 
-    def handlers(self) -> dict[type[A.Action], Callable]:
-        """The actions this controller carries out (errors propagate to the app's report)."""
-        host, st = self.host, self.host.state
-        cam = lambda: st.camera  # noqa: E731  (the camera object is replaced by Reset and sessions)
-        return {
-            A.OpenAvatar: lambda a: host.open_avatar(a.path) if a.path else None,
-            A.OpenSequence: lambda a: host.open_sequence(a.path) if a.path else None,
-            A.CameraPreset: self._preset,
-            A.FrameAvatar: lambda a: host.frame_avatar(),
-            A.ResetCamera: lambda a: host.frame_avatar(reset=True),
-            A.OrbitBy: lambda a: cam().orbit(a.yaw, a.pitch),
-            A.ZoomBy: lambda a: cam().zoom(a.steps),
-            A.RollBy: lambda a: setattr(cam(), "roll", cam().roll + a.degrees),
-            A.CycleRigCamera: self._cycle_rig,
-            A.FocusGaussian: self._focus,
-            A.ResetExpression: self._reset_expression,
-            A.RandomExpression: self._random_expression,
-            A.SlidersFromFrame: self._sliders_from_frame,
-            A.ApplyPreset: self._apply_preset,
-            A.SavePreset: self._save_preset,
-            A.TogglePlay: self._toggle_play,
-            A.StepFrames: self._step,
-            A.Bake: lambda a: self.bakes.start(),
-            A.CancelBake: lambda a: self.bakes.cancel(),
-            A.Screenshot: self._screenshot,
-            A.ToggleRecording: lambda a: self.toggle_recording(),
-            A.SaveSession: lambda a: st.save_session(a.path or "session.json"),
-            A.LoadSession: lambda a: self.load_session(a.path or "session.json"),
-            A.LoadRig: self._load_rig,
-            A.LoadBasis: self._load_basis,
-            A.SetFlameModel: self._set_flame_model,
-        }
+    def handlers(self) -> A.Handlers:
+        """The actions this controller carries out, each by a typed method (errors propagate to the app's
+        report)."""
+        h = A.Handlers()
+        h.register(A.OpenAvatar, self._open_avatar)
+        h.register(A.OpenSequence, self._open_sequence)
+        h.register(A.CameraPreset, self._preset)
+        h.register(A.FrameAvatar, self._frame_avatar)
+        h.register(A.ResetCamera, self._reset_camera)
+        h.register(A.OrbitBy, self._orbit)
+        h.register(A.ZoomBy, self._zoom)
+        h.register(A.RollBy, self._roll)
+        h.register(A.CycleRigCamera, self._cycle_rig)
+        h.register(A.FocusGaussian, self._focus)
+        h.register(A.ResetExpression, self._reset_expression)
+        h.register(A.RandomExpression, self._random_expression)
+        h.register(A.SlidersFromFrame, self._sliders_from_frame)
+        h.register(A.ApplyPreset, self._apply_preset)
+        h.register(A.SavePreset, self._save_preset)
+        h.register(A.TogglePlay, self._toggle_play)
+        h.register(A.StepFrames, self._step)
+        h.register(A.Bake, self._bake)
+        h.register(A.CancelBake, self._cancel_bake)
+        h.register(A.Screenshot, self._screenshot)
+        h.register(A.ToggleRecording, self._toggle_recording)
+        h.register(A.SaveSession, self._save_session)
+        h.register(A.LoadSession, self._load_session)
+        h.register(A.LoadRig, self._load_rig)
+        h.register(A.LoadBasis, self._load_basis)
+        h.register(A.SetFlameModel, self._set_flame_model)
+        return h
 
-    def _expression(self):
+    def _expression(self) -> ExpressionSpace | None:
         return self.host.avatar.expression if self.host.avatar is not None else None
+
+    # -- files, camera (the camera object is read each time: Reset and sessions replace it) ----------------
+    def _open_avatar(self, a: A.OpenAvatar) -> None:
+        if a.path:
+            self.host.open_avatar(a.path)
+
+    def _open_sequence(self, a: A.OpenSequence) -> None:
+        if a.path:
+            self.host.open_sequence(a.path)
+
+    def _frame_avatar(self, a: A.FrameAvatar) -> None:
+        self.host.frame_avatar()
+
+    def _reset_camera(self, a: A.ResetCamera) -> None:
+        self.host.frame_avatar(reset=True)
+
+    def _orbit(self, a: A.OrbitBy) -> None:
+        self.host.state.camera.orbit(a.yaw, a.pitch)
+
+    def _zoom(self, a: A.ZoomBy) -> None:
+        self.host.state.camera.zoom(a.steps)
+
+    def _roll(self, a: A.RollBy) -> None:
+        self.host.state.camera.roll += a.degrees
 
     def _preset(self, a: A.CameraPreset) -> None:
         self.host.state.camera.preset(a.name)
@@ -142,6 +166,21 @@ class ActionController:
         f = (self.poses.frame + a.delta) % len(host.sequence)
         st.timeline.time_s = (f + 0.5) / host.sequence.fps
         st.follow_sequence = True
+
+    def _bake(self, a: A.Bake) -> None:
+        self.bakes.start()
+
+    def _cancel_bake(self, a: A.CancelBake) -> None:
+        self.bakes.cancel()
+
+    def _toggle_recording(self, a: A.ToggleRecording) -> None:
+        self.toggle_recording()
+
+    def _save_session(self, a: A.SaveSession) -> None:
+        self.host.state.save_session(a.path or "session.json")
+
+    def _load_session(self, a: A.LoadSession) -> None:
+        self.load_session(a.path or "session.json")
 
     def _screenshot(self, a: A.Screenshot) -> None:
         stamp = _dt.datetime.now().strftime("%Y%m%d-%H%M%S")

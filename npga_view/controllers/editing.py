@@ -11,7 +11,6 @@ from __future__ import annotations
 import shutil
 import tempfile
 import time
-from collections.abc import Callable
 from pathlib import Path
 
 import numpy as np
@@ -74,22 +73,23 @@ class EditController:
         self._seen = (self.session.version, self.session.mask_version)
 
     # -- actions ------------------------------------------------------------------------------------
-    def handlers(self) -> dict[type[A.Action], Callable]:
-        """This controller's table of action type -> handler: the edit and keyframe tables of
+    def handlers(self) -> A.Handlers:
+        """This controller's typed table of action type -> handler: the edit and keyframe tables of
         `edit_actions` bound to the open session / timeline, and the actions that need the window."""
-        table: dict[type[A.Action], Callable] = {t: self._edit for t in EDIT_TABLE}
-        table.update({t: self._timeline for t in KEYFRAME_TABLE})
-        table.update({
-            A.SelectTool: self._select_tool,
-            A.RecoverEdits: self._recover,
-            A.NewKeyframes: self._new_keyframes,
-            A.AddExpressionKey: self._add_expression_key,
-            A.AddCameraKey: lambda a: self.keyframes.add_camera(a.time, self.app.current_camera(ignore_keyframes=True)),
-            A.PlayKeyframes: self._play,
-            A.SeekKeyframes: self._seek,
-            A.LoadKeyframes: self._load_keyframes,
-        })
-        return table
+        h = A.Handlers()
+        for t in EDIT_TABLE:
+            h.register(t, self._edit)
+        for t in KEYFRAME_TABLE:
+            h.register(t, self._timeline)
+        h.register(A.SelectTool, self._select_tool)
+        h.register(A.RecoverEdits, self._recover)
+        h.register(A.NewKeyframes, self._new_keyframes)
+        h.register(A.AddExpressionKey, self._add_expression_key)
+        h.register(A.AddCameraKey, self._add_camera_key)
+        h.register(A.PlayKeyframes, self._play)
+        h.register(A.SeekKeyframes, self._seek)
+        h.register(A.LoadKeyframes, self._load_keyframes)
+        return h
 
     def _edit(self, a: A.Action) -> None:
         if self.session is None:
@@ -116,6 +116,9 @@ class EditController:
     def _add_expression_key(self, a: A.AddExpressionKey) -> None:
         code = self.app.code_for_keyframe(a.source, a.preset)
         self.keyframes.add_expression(a.time, code, interp=a.interp, label=a.preset or a.source)
+
+    def _add_camera_key(self, a: A.AddCameraKey) -> None:
+        self.keyframes.add_camera(a.time, self.app.current_camera(ignore_keyframes=True))
 
     def _play(self, a: A.PlayKeyframes) -> None:
         self.kf_playing = a.playing and not self.keyframes.is_empty()

@@ -207,15 +207,27 @@ class LiveLinkController:
         n = rx.stop_recording(p)
         return f"recorded {n} frames to {p}"
 
-    def handlers(self) -> dict[type[A.Action], Callable]:
-        """The Live Link actions (npga_view/actions.py) this controller carries out."""
-        return {
-            A.LiveLinkStart: lambda a: self.start(a.address),
-            A.LiveLinkStop: lambda a: self.stop(),
-            A.LiveLinkNeutral: lambda a: self.neutral(),
-            A.LiveLinkGain: lambda a: self.set_gain(a.name, a.gain),
-            A.LiveLinkRecord: self._record,
-        }
+    def handlers(self) -> A.Handlers:
+        """The Live Link actions (npga_view/actions.py) this controller carries out, each by a typed method."""
+        h = A.Handlers()
+        h.register(A.LiveLinkStart, self._start)
+        h.register(A.LiveLinkStop, self._stop)
+        h.register(A.LiveLinkNeutral, self._neutral)
+        h.register(A.LiveLinkGain, self._gain)
+        h.register(A.LiveLinkRecord, self._record)
+        return h
+
+    def _start(self, a: A.LiveLinkStart) -> None:
+        self.start(a.address)
+
+    def _stop(self, a: A.LiveLinkStop) -> None:
+        self.stop()
+
+    def _neutral(self, a: A.LiveLinkNeutral) -> None:
+        self.neutral()
+
+    def _gain(self, a: A.LiveLinkGain) -> None:
+        self.set_gain(a.name, a.gain)
 
     def _record(self, a: A.LiveLinkRecord) -> None:
         msg = self.record(a.path)
