@@ -13,6 +13,7 @@ from __future__ import annotations
 import os
 import sys
 import time
+from collections.abc import Callable
 
 import numpy as np
 
@@ -49,6 +50,8 @@ from npga_view.view_camera import ViewCamera
 from npga_view.view_input import ViewInput
 from npga_view.window import SIDE_PANEL, Window
 
+#: a frame is drawn at least this often even when it would be the one on screen (a safety net)
+PRESENT_AT_LEAST_S = 0.25
 
 class ViewerApp:
     """One window. Use `run()` for the interactive loop or `step()` to drive it frame by frame (tests)."""
@@ -100,6 +103,10 @@ class ViewerApp:
         self._last_t = time.perf_counter()
         self._fps_t: list[float] = []
         self.frames = 0
+        self.presented = 0  # frames drawn into the window (`_present`: the others were the frame on screen)
+        self._view_key: tuple | None = None
+        self._presented_key: tuple | None = None
+        self._presented_t = -1e9
         self.profile = FrameProfile()  # wall time per section of the UI frames (stats overlay, bench)
         self.should_close = False
         # controllers, each built after what it is handed
@@ -266,7 +273,9 @@ class ViewerApp:
         before the first pose). Draws at the live scale meanwhile."""
         return self._input_active() or self.live.busy() or self.poses.preview or self.poses.canonical
 
-    def _draw_splats(self) -> None:
+    def _draw_splats(self) -> Callable[[], None]:
+        """Schedule this frame's splat drawing (`DrawScheduler`), the refinement or the comparison; returns what draws
+        the view into the window (`_present`), and sets `_view_key` to what it shows (None: always drawn)."""
         cam = self.current_camera()
         info = self.info
         self.lod.enabled = self.state.merged_live and not self.legacy
@@ -289,13 +298,36 @@ class ViewerApp:
         self.inspection.update_figures(self.state.inspect, self._posed, self.poses.shown_code, cam,
                                        self.renderer.drawn_mask, NEAR, interacting, time.perf_counter())
         viewport = self._viewport()
-        if self.compare.show(self.avatar, self.poses.shown_code, cam, self.state.background,  # replaces the splats
-                             self.draws.budget_ms * 0.5, self.ctx.screen, viewport, self.state.report):
-            return
-        if self.refining.present(cam, self.ctx.screen, viewport):
-            return
-        bg = self.state.background if self.state.mode == "rgb" else (0.0, 0.0, 0.0)
-        self.draws.present(self.ctx.screen, bg, flip_y=True, viewport=viewport)
+        screen, background = self.ctx.screen, self.state.background
+        if self.compare.update(self.avatar, self.poses.shown_code, cam, self.draws.budget_ms * 0.5,
+                               self.state.report):  # replaces the splats
+            self._view_key = None  # (drawn every frame)
+            return lambda: self.compare.draw(screen, viewport, background)
+        if self.refining.update(cam):
+            self._view_key = ("refined", self.refining.key, self.refining.shown, viewport)
+            return lambda: self.refining.draw(screen, viewport)
+        bg = background if self.state.mode == "rgb" else (0.0, 0.0, 0.0)
+        self._view_key = ("splats", self.draws.images, self.draws.shown_target, self.draws.scale, bg, viewport)
+        return lambda: self.draws.present(screen, bg, flip_y=True, viewport=viewport)
+
+    def _present(self, ui_key: int, view: Callable[[], None]) -> bool:
+        """Draw the frame (the view, then imgui by the caller) unless it would be the frame on screen again: the
+        same view image (splats or refined) and imgui output as the last frame drawn, nothing compared or recorded,
+        drawn less than `PRESENT_AT_LEAST_S` ago. On a software GL drawing a frame costs ~10 ms of fill whether
+        or not anything changed: undrawn frames leave it to the images being drawn (input is still taken every
+        frame, and any change of the panels changes imgui's output)."""
+        window = self.window
+        assert window is not None
+        now = time.perf_counter()
+        key = None if self._view_key is None else (self._view_key, ui_key, window.framebuffer_size())
+        if key is not None and key == self._presented_key and not self.recorder.recording \
+                and now - self._presented_t < PRESENT_AT_LEAST_S:
+            return False
+        window.clear()
+        view()
+        self._presented_key, self._presented_t = key, now
+        self.presented += 1
+        return True
 
     def _draw_ui(self) -> None:
         assert self.window is not None
@@ -356,20 +388,22 @@ class ViewerApp:
         if self._posed is not None and self.inspection.stale(self.state.inspect, self.current_camera):
             self.show(self._posed)  # the Inspect settings (or, for depth colouring, the camera) changed
         profile.mark("posing")
-        window.clear()
-        self._draw_splats()
+        view = self._draw_splats()
         profile.mark("splats")
         self._publish_info()
         if self.state.show_stats:
             self.info.frame_profile = profile.lines()
             for panel in self.panels.overlays:  # after drawing, so that they report this frame's image
                 panel.draw(self.state, self.info)
-        self.recorder.frame()
+        ui_key = window.finish_ui()
         profile.mark("stats")
-        window.draw_ui()
-        profile.mark("ui")
-        window.swap()
-        profile.mark("swap")
+        if self._present(ui_key, view):
+            profile.mark("splats")
+            self.recorder.frame()
+            window.draw_ui()
+            profile.mark("ui")
+            window.swap()
+            profile.mark("swap")
         profile.end()
         self.frames += 1
         self._was_quiet = self._quiet() and not self.live.busy()

@@ -3,13 +3,15 @@
 Opens a 4.3 core context (the compute path), else 4.1 core (macOS, the 4.1 path); installs imgui's glfw and
 OpenGL backends; splits the framebuffer into the side panel (`SIDE_PANEL` logical pixels) and the splat view.
 `take_input` polls input (or waits for it up to a timeout when nothing moves), `new_frame` starts imgui's frame,
-`draw_ui` renders imgui, `swap` shows the frame. Nothing here knows about avatars.
+`finish_ui` ends it (and fingerprints what imgui would draw, so that a frame with nothing new need not be drawn
+again), `draw_ui` renders imgui, `swap` shows the frame. Nothing here knows about avatars.
 """
 
 from __future__ import annotations
 
 import ctypes
 import warnings
+import zlib
 from collections.abc import Callable
 from pathlib import Path
 from typing import Any
@@ -21,6 +23,7 @@ from npga_view.imgui_glfw import drawable, glfw, imgui
 from npga_view.rendering.gl import release_current_egl, window_context
 
 SIDE_PANEL = 400  # logical pixels
+DRAW_VERT_BYTES = 20  # ImDrawVert: position (2 floats), uv (2 floats), colour (4 bytes)
 
 
 class Window:
@@ -110,9 +113,26 @@ class Window:
         self.ctx.viewport = (0, 0, fw, fh)
         self.ctx.clear(0.08, 0.08, 0.09, 1.0)
 
-    def draw_ui(self) -> None:
-        """Render imgui's draw lists over the frame."""
+    def finish_ui(self) -> int:
+        """End imgui's frame (its draw lists are built, nothing is drawn yet); returns a fingerprint of what it
+        would draw: its vertices, indices, commands, clip rectangles and sizes, and any texture it must update
+        (a frame whose fingerprint and splat image are those on screen need not be drawn again)."""
         imgui.render()
+        data = imgui.get_draw_data()
+        h = zlib.crc32(np.array([*data.display_size, *data.framebuffer_scale, data.cmd_lists_count],
+                                np.float32).tobytes())
+        for cl in data.cmd_lists:
+            v, i = cl.vtx_buffer, cl.idx_buffer
+            h = zlib.crc32(ctypes.string_at(v.data_address(), v.size() * DRAW_VERT_BYTES), h)
+            h = zlib.crc32(ctypes.string_at(i.data_address(), i.size() * 2), h)  # (at least 2 bytes an index)
+            cmds = [(c.elem_count, c.idx_offset, c.vtx_offset, *c.clip_rect) for c in cl.cmd_buffer]
+            h = zlib.crc32(repr(cmds).encode(), h)
+        if any(t.status != imgui.ImTextureStatus.ok for t in (data.textures or [])):
+            h = zlib.crc32(b"texture update", h ^ 0x5A5A5A5A)  # (never equal to a frame without it)
+        return h
+
+    def draw_ui(self) -> None:
+        """Render imgui's draw lists (built by `finish_ui`) over the frame."""
         imgui.backends.opengl3_render_draw_data(imgui.get_draw_data())
 
     def swap(self) -> None:

@@ -84,6 +84,40 @@ def app(display, xserver, tmp_path, monkeypatch):
     a.close()
 
 
+def test_a_frame_with_nothing_new_is_not_drawn_again(app, avatar_path, monkeypatch):
+    """A frame whose view image and imgui output are those on screen is not drawn again (on llvmpipe a frame costs
+    ~10 ms of fill), but a panel change or a new image is, the pixels stay right, and a frame is drawn at least
+    every PRESENT_AT_LEAST_S even so."""
+    from npga_view import app as app_module
+
+    monkeypatch.setattr(app_module, "PRESENT_AT_LEAST_S", 1e9)  # (the safety net checked at the end)
+    assert app.open_avatar(avatar_path)
+    settle(app)
+    app.state.show_stats = False
+    for _ in range(3):
+        app.step()
+    shown = app.read_window()
+    p0 = app.presented
+    for _ in range(10):
+        app.step()
+    assert app.presented == p0, "frames with nothing new were drawn again"
+    np.testing.assert_array_equal(app.read_window(), shown)
+    app.state.show_stats = True  # a panel change: imgui's output differs
+    app.step()
+    assert app.presented == p0 + 1
+    assert not np.array_equal(app.read_window(), shown)
+    app.state.show_stats = False
+    drag(app, "slider0", 0.9)  # a new pose: new images
+    p1 = app.presented
+    settle(app)
+    assert app.presented > p1
+    monkeypatch.setattr(app_module, "PRESENT_AT_LEAST_S", 0.0)
+    p2 = app.presented
+    for _ in range(3):
+        app.step()
+    assert app.presented == p2 + 3
+
+
 def run_until(app, cond, timeout=60.0):
     end = time.monotonic() + timeout
     while time.monotonic() < end:

@@ -126,23 +126,24 @@ class CompareController:
             return False
         return self.view.update(avatar, version, code, camera, budget_ms)
 
-    def show(self, avatar: Avatar | None, code: np.ndarray | None, camera: Camera,
-             background: tuple[float, float, float], budget_ms: float, framebuffer: moderngl.Framebuffer,
-             view: tuple[int, int, int, int], report: Callable[[str], None]) -> bool:
-        """One UI frame of the window: `frame`, errors to `report`, and the comparison drawn into `view` of
-        `framebuffer` (around it: the window's `background`) when it is shown and has an image (True: it replaced
-        the splat view). The avatar's edits are seen through `Avatar.version` (bumped by every edit)."""
+    def update(self, avatar: Avatar | None, code: np.ndarray | None, camera: Camera, budget_ms: float,
+               report: Callable[[str], None]) -> bool:
+        """One UI frame of the window: `frame`, errors to `report`; True when the comparison is shown and has an
+        image (it replaces the splat view: `draw` it). The avatar's edits are seen through `Avatar.version`
+        (bumped by every edit)."""
         version = None if avatar is None else (id(avatar), avatar.version)
         self.frame(avatar, version, code, camera, budget_ms)
         for msg in self.messages:
             report(msg)
         self.messages.clear()
-        if not self.active or not self.view.has_image:
-            return False
+        return self.active and self.view.has_image
+
+    def draw(self, framebuffer: moderngl.Framebuffer, view: tuple[int, int, int, int],
+             background: tuple[float, float, float]) -> None:
+        """The comparison drawn into `view` of `framebuffer` (around it: the window's `background`)."""
         framebuffer.use()
         framebuffer.clear(*background, 1.0, viewport=view)
         self.present(framebuffer, view)
-        return True
 
     @property
     def busy(self) -> bool:

@@ -47,6 +47,23 @@ class RefineController:
 
     def present(self, camera: Camera, framebuffer, viewport: tuple[int, int, int, int]) -> bool:
         """Present the refined or latent image of the view if it is ready (True), else leave it to the splats."""
+        if not self.update(camera):
+            return False
+        self.draw(framebuffer, viewport)
+        return True
+
+    def draw(self, framebuffer, viewport: tuple[int, int, int, int]) -> None:
+        """Draw the refined or latent image (`update` said it is ready) into `viewport` of `framebuffer`."""
+        self.refiner.present(framebuffer, viewport, flip_y=True)
+
+    @property
+    def key(self) -> tuple | None:
+        """What the refined image on screen is of (the splat image, view, latent channel, background)."""
+        return self._key
+
+    def update(self, camera: Camera) -> bool:
+        """One UI frame: start, continue or drop the refinement of the view; True when its refined or latent image
+        is ready to be shown instead of the splats (`draw`)."""
         st = self.state
         what = self.refiner.shows(st.use_cnn, st.latent_view, st.mode)
         if what is None:
@@ -68,7 +85,6 @@ class RefineController:
         if not ready:
             self._set_shown("splats (refining)")
             return False
-        self.refiner.present(framebuffer, viewport, flip_y=True)
         self._set_shown(what)
         return True
 

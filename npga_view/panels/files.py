@@ -185,13 +185,14 @@ class FilesPanel:
         imgui.same_line()
         if imgui.button("Demo"):
             state.actions.append(A.OpenAvatar("demo"))
-        if imgui.button("Set FLAME model"):
+        imgui.same_line()  # (on the row of the buttons above: the panels below keep their place)
+        if imgui.button("FLAME model"):
             state.actions.append(A.SetFlameModel(self.path.strip()))
         if imgui.is_item_hovered():
-            imgui.set_tooltip("your FLAME model (flame2023.pkl, FLAME 2020's generic_model.pkl): GaussianAvatars "
-                              "output folders then open (imported once into the cache; read without running code)")
-        imgui.same_line()
-        imgui.text_disabled(f"FLAME: {shown(Path(state.flame_model).name) if state.flame_model else '-'}")
+            now = shown(state.flame_model) if state.flame_model else "none"
+            imgui.set_tooltip("set the path above as your FLAME model (flame2023.pkl, FLAME 2020's "
+                              "generic_model.pkl): GaussianAvatars output folders then open (imported once into the "
+                              f"cache; read without running code). Now: {now}")
         if self._native():
             self.poll_dialog(state)
             self._native_buttons()
