@@ -117,13 +117,18 @@ class ViewerState:
     rig_path: str | None = None
     rig_index: int = -1  # -1: orbit camera
     errors: list[str] = field(default_factory=list)
+    notices: list[str] = field(default_factory=list)  # those of `errors` that are notes, not failures
     recent: list[str] = field(default_factory=list)
     presets: dict[str, list[float]] = field(default_factory=dict)  # user expression presets: name -> code
     actions: list[Action] = field(default_factory=list)  # requests from panels and keys (npga_view/actions.py)
 
-    def report(self, message: str) -> None:
-        """Show an error in the UI (kept short, newest last, at most 5)."""
-        self.errors = (self.errors + [shown(" ".join(str(message).split()))])[-5:]
+    def report(self, message: str, note: bool = False) -> None:
+        """Show an error in the UI (kept short, newest last, at most 5); `note`: a note on a file that was
+        opened (a take's unmatched shapes), shown the same way but no failure of a scripted run."""
+        text = shown(" ".join(str(message).split()))
+        self.errors = (self.errors + [text])[-5:]
+        if note:
+            self.notices = (self.notices + [text])[-5:]
 
     def add_recent(self, path: str) -> None:
         path = str(Path(path).resolve()) if path != "demo" else path

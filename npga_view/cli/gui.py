@@ -136,9 +136,13 @@ def _open_and_run(args: argparse.Namespace, w: int, h: int, holder: dict) -> int
     except BaseException:
         app.close()
         raise
-    if args.quit_after_frames is not None and app.state.errors:
+    failures = [e for e in app.state.errors if e not in app.state.notices]
+    if args.quit_after_frames is not None:
+        for note in app.state.notices:  # notes on the files opened (a take's unmatched shapes): said, not failed
+            print(f"npga-view: note: {note}", file=sys.stderr)
+    if args.quit_after_frames is not None and failures:
         # scripted runs fail loudly on bad input instead of screenshotting an error
-        msg = app.state.errors[-1]
+        msg = failures[-1]
         app.close()
         print(f"npga-view: error: {msg}", file=sys.stderr)
         return 2
