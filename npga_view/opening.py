@@ -149,7 +149,7 @@ def open_sequence(app: OpeningHost, path: str) -> bool:
         app.state.report(str(e))
         return False
     for note in seq.notes:  # unmatched shapes, frames not recorded: once, as one line each
-        app.state.report(note)
+        app.state.report(note, note=True)
     app.sequence = seq
     app.poses.sequence_opened(len(seq), seq.fps)
     app.state.sequence_path = str(Path(path).resolve())

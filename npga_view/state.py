@@ -123,8 +123,12 @@ class ViewerState:
     presets: dict[str, list[float]] = field(default_factory=dict)  # user expression presets: name -> code
     actions: list[Action] = field(default_factory=list)  # requests from panels and keys (npga_view/actions.py)
 
-    def report(self, message: str) -> None:
-        """Show an error in the UI (kept short, newest last, at most 5)."""
+    def report(self, message: str, note: bool = False) -> None:
+        """Show an error in the UI (kept short, newest last, at most 5); `note`: a note on a file that was
+        opened (a take's unmatched shapes): a status line (`tell`), no failure of a scripted run."""
+        if note:
+            self.tell(message)
+            return
         self.errors = (self.errors + [shown(" ".join(str(message).split()))])[-5:]
 
     def tell(self, message: str) -> None:

@@ -6,7 +6,8 @@
   fraction of a frame). The timecode's rate is the smallest common rate above every FF seen (`timecode_rate`);
   the take's own is its median row spacing snapped to whole timecode frames (`recorded_rate`: 30 on a 60 count). Head
   angles (radians) give the head pose; eye angles are kept; angle columns all zero mean "not recorded".
-- JSON: LAM Audio2Expression's ``{"names", "metadata": {"fps"}, "frames": [{"weights", "time"}]}``;
+- JSON: LAM Audio2Expression's ``{"names", "metadata": {"fps"}, "frames": [{"weights", "time"}]}`` (a
+  ``head_pose`` beside them, as in LAM_WebRender's example, is ignored and said so: `LAM_HEAD_POSE_IGNORED`);
   NVIDIA Audio2Face's blendshape export ``{"exportFps", "numPoses", "numFrames", "facsNames", "weightMat"}``
   (one row of ``numPoses`` weights per frame at ``exportFps``); ``{"names": [...], "values": [[...]]}``;
   MediaPipe face-landmarker category lists (per frame ``[{"categoryName"|"category_name", "score"}]``,
@@ -55,6 +56,13 @@ JSON_FPS = 30.0
 MAX_STEP = 8
 TAKE_SUFFIXES = (".csv", ".json")
 HEAD_POSE = "ARKit head angles (radians): x_world = Ry(yaw) Rx(pitch) Rz(roll) x"
+#: LAM_WebRender's asset/test_expression_1s.json carries a `head_pose` (T x 3 small numbers) that no code of LAM's
+#: produces or reads: LAM_Audio2Expression returns ``"headpose": None`` (engines/infer.py line 233, models/utils.py
+#: line 136), LAM_WebRender's src/gaussianAvatar.ts (lines 53-66) reads only ``names`` and the frames' ``weights``
+#: and its player (gaussian-splat-renderer-for-lam 0.0.8) never mentions it; aigc3d/LAM and OpenAvatarChat do
+#: not either. Its axes, order and units are nowhere defined, so it is not guessed at.
+LAM_HEAD_POSE_IGNORED = ("head_pose ignored: no LAM code writes or reads it (Audio2Expression returns no head pose, "
+                         "the web player reads only the weights), so its axes and units are unknown")
 _TIMECODE = re.compile(r"^(\d{1,2}):(\d{2}):(\d{2})[:;](\d{1,3})(?:\.(\d{1,9}))?$")
 
 
@@ -69,6 +77,7 @@ class Take:
     head: np.ndarray | None = None  # (T, 3) yaw, pitch, roll in radians
     eyes: np.ndarray | None = None  # (T, 6) left yaw, pitch, roll, right yaw, pitch, roll
     name: str = ""
+    ignored: str = ""  # one line: what of the file is not used, and why (shown by `info` and as a note)
 
 
 # ------------------------------------------------------------------------------------------ timecodes
@@ -401,7 +410,8 @@ def _json_take(data: Any, path: Path) -> _Layout:
 def read_arkit_json(path: str | Path) -> Take:
     """An ARKit JSON take in any of the layouts above."""
     path = Path(path)
-    names, w, t, fps = _json_take(parse_json(read_bytes(path, MAX_TAKE_BYTES, "a take file"), path), path)
+    data = parse_json(read_bytes(path, MAX_TAKE_BYTES, "a take file"), path)
+    names, w, t, fps = _json_take(data, path)
     if len(w) == 0 or not names:
         raise AvatarFileError(path, "has no frames")
     if len(w) > MAX_FRAMES or len(names) > MAX_COLUMNS:
@@ -409,7 +419,10 @@ def read_arkit_json(path: str | Path) -> Take:
     if len(set(names)) != len(names):
         raise AvatarFileError(path, "repeats a blendshape name")
     times = np.arange(len(w), dtype=np.float64) / fps if t is None else t - t[0]
-    return Take(_checked_weights(w, path), tuple(names), _checked_times(times, path), fps, name=path.stem)
+    take = Take(_checked_weights(w, path), tuple(names), _checked_times(times, path), fps, name=path.stem)
+    if isinstance(data, dict) and "names" in data and "frames" in data and "head_pose" in data:
+        take.ignored = LAM_HEAD_POSE_IGNORED
+    return take
 
 
 def read_take(path: str | Path) -> Take:
@@ -481,6 +494,8 @@ def take_sequence(take: Take, basis: BlendshapeBasis, path: str | Path,
     if take.head is not None:
         seq.pose = head_pose(resample(take.times, take.head, rate))
         seq.pose_source = HEAD_POSE
+    if take.ignored:
+        seq.notes.append(f"{shown(path)}: {take.ignored}")
     report = match.report()
     if report:  # (names from the file: escaped, never a raw bidi control, newline or lone surrogate)
         seq.notes.append(shown(f"{path}: {report}"))

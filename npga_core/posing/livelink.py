@@ -28,6 +28,7 @@ import contextlib
 import math
 import socket
 import struct
+import sys
 import threading
 from collections.abc import Callable
 from dataclasses import dataclass
@@ -54,6 +55,9 @@ MAX_PACKET = 45 + MAX_SUBJECT + _TAIL.size + _VALUES.size
 #: packet late until the clock catches up.
 REORDER_S = 1.0
 JUMP_S = 2.0
+#: Linux's SO_RXQ_OVFL (asm-generic/socket.h): with it set, each datagram read carries the socket's count of
+#: datagrams the kernel dropped (receive buffer full) before it was queued.
+SO_RXQ_OVFL = getattr(socket, "SO_RXQ_OVFL", 40)
 
 
 class PacketError(ValueError):
@@ -118,11 +122,20 @@ def encode(values: np.ndarray, frame: int, fps: int = 60, subject: str = "npga",
 
 @dataclass
 class Counters:
-    received: int = 0  # well-formed packets taken
+    """What became of every datagram: each one read is counted once as received, late, bad or ignored; each
+    received packet is then either taken (`latest()` returned it), dropped (replaced by a newer one before
+    `latest()` saw it) or still pending (the newest, not yet seen): received == taken + dropped + pending.
+    Datagrams the OS dropped before the receiver read them (its buffer full) are `overflow` where the OS counts
+    them (Linux: SO_RXQ_OVFL, as of the last datagram read), else never seen and not counted."""
+
+    received: int = 0  # well-formed packets taken in as the newest
     late: int = 0  # well-formed but not newer than the last one taken (reordered or repeated)
-    dropped: int = 0  # taken but replaced by a newer one before `latest()` saw it
+    dropped: int = 0  # taken in but replaced by a newer one before `latest()` saw it
     bad: int = 0  # malformed datagrams
     jumps: int = 0  # packets whose time jumped by more than JUMP_S (or back by more than REORDER_S): re-anchored
+    taken: int = 0  # packets `latest()` handed out (each once)
+    ignored: int = 0  # well-formed packets of another subject than the one listened for
+    overflow: int = 0  # datagrams the OS dropped before they were read (counted only where `counts_overflow`)
 
 
 class LiveLinkReceiver:
@@ -151,6 +164,12 @@ class LiveLinkReceiver:
         self._sock = socket.socket(socket.AF_INET, socket.SOCK_DGRAM)
         with contextlib.suppress(OSError):  # room for a burst while the thread is descheduled
             self._sock.setsockopt(socket.SOL_SOCKET, socket.SO_RCVBUF, 1 << 20)
+        #: whether the OS reports the datagrams it drops (`Counters.overflow`): Linux only
+        self.counts_overflow = False
+        if sys.platform.startswith("linux") and hasattr(self._sock, "recvmsg"):
+            with contextlib.suppress(OSError):
+                self._sock.setsockopt(socket.SOL_SOCKET, SO_RXQ_OVFL, 1)
+                self.counts_overflow = True
         self._sock.bind((host, port))
         self._sock.settimeout(0.05)
         self.address: tuple[str, int] = self._sock.getsockname()
@@ -163,7 +182,7 @@ class LiveLinkReceiver:
     def _run(self) -> None:
         while not self._stop.is_set():
             try:
-                data = self._sock.recv(MAX_PACKET + 1)
+                data = self._recv()
             except TimeoutError:
                 continue
             except OSError:
@@ -174,6 +193,18 @@ class LiveLinkReceiver:
                 with contextlib.suppress(Exception):
                     self.on_packet()
 
+    def _recv(self) -> bytes:
+        """One datagram; where the OS counts its drops, their count (cumulative) is taken as `overflow`."""
+        if not self.counts_overflow:
+            return self._sock.recv(MAX_PACKET + 1)
+        data, ancillary, _, _ = self._sock.recvmsg(MAX_PACKET + 1, socket.CMSG_SPACE(4))
+        for level, kind, raw in ancillary:
+            if level == socket.SOL_SOCKET and kind == SO_RXQ_OVFL and len(raw) >= 4:
+                n = int.from_bytes(raw[:4], sys.byteorder)
+                with self._lock:
+                    self.counters.overflow = max(self.counters.overflow, n)
+        return data
+
     def feed(self, data: bytes) -> bool:
         """Take one datagram (the thread calls this; tests and replays may too); True if it was used."""
         try:
@@ -183,6 +214,8 @@ class LiveLinkReceiver:
                 self.counters.bad += 1
             return False
         if self.subject is not None and p.subject != self.subject:
+            with self._lock:
+                self.counters.ignored += 1
             return False
         with self._lock:
             t = p.timestamp
@@ -219,8 +252,16 @@ class LiveLinkReceiver:
         with self._lock:
             if self._out is None:
                 return None
+            if not self._seen:
+                self.counters.taken += 1
             self._seen = True
             return self._out[0].copy(), self._out[2]
+
+    @property
+    def pending(self) -> int:
+        """1 while the newest packet received has not been handed out by `latest()`, else 0."""
+        with self._lock:
+            return int(self._out is not None and not self._seen)
 
     def angles(self) -> np.ndarray | None:
         """Head yaw, pitch, roll and eye angles (9,) of the newest packet, relative to the neutral."""

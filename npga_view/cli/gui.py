@@ -147,13 +147,21 @@ def _open_and_run(args: argparse.Namespace, w: int, h: int, holder: dict) -> int
     except BaseException:
         app.close()
         raise
-    if args.quit_after_frames is not None and app.state.errors:
-        # scripted runs fail loudly on bad input instead of screenshotting an error
-        msg = app.state.errors[-1]
+    if args.quit_after_frames is not None and _scripted_failure(app):
         app.close()
-        print(f"npga-view: error: {msg}", file=sys.stderr)
         return 2
     return app.run(args.screenshot, args.quit_after_frames)
+
+
+def _scripted_failure(app) -> bool:
+    """A scripted run says what opening its files did (a take's unmatched shapes: notes, no failure) and fails
+    loudly on bad input instead of screenshotting an error (True: the last error printed)."""
+    for note in app.state.notices:
+        print(f"npga-view: note: {note}", file=sys.stderr)
+    if app.state.errors:
+        print(f"npga-view: error: {app.state.errors[-1]}", file=sys.stderr)
+        return True
+    return False
 
 
 def check_files(args: argparse.Namespace) -> None:

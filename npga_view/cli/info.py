@@ -148,7 +148,8 @@ def take_summary(path: str) -> str:
              f"  never moving (<= {STILL:g}): {len(still)}"
              + (f": {', '.join(shown(x) for x in still)}" if still else ""),
              f"  absent: {', '.join(x for x in ARKIT_52 if x not in arkit) or 'none'}",
-             "  head pose: " + ("none recorded (the angle columns are absent or all zero)" if take.head is None else
+             "  head pose: " + (take.ignored if take.ignored else
+                                "none recorded (the angle columns are absent or all zero)" if take.head is None else
                                 f"recorded (yaw/pitch/roll up to {float(np.abs(take.head).max()):.3g} rad)")]
     return "\n".join(lines)
 
