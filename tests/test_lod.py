@@ -236,6 +236,16 @@ def test_shifted_merge_follows_moved_centres():
     move /= np.bincount(labels, w, level.clusters)[:, None]
     np.testing.assert_allclose(shifted.means - kept.cloud.means, move, atol=1e-6)
     assert shifted.scales is kept.cloud.scales and shifted.sh is kept.cloud.sh
+    # with the new SH: the base colour (DC) is the weighted mean of the members' (the merge's own, for fixed
+    # weights), the view-dependent bands stay the merge's
+    sh2 = g.sh.copy()
+    sh2[:, 0, :] += np.sin(g.means).astype(np.float32)
+    sh2[:, 1:, :] *= 2.0
+    recoloured = kept.shifted(g.means, sh2)
+    same_weights = PosedGaussians(g.means, g.quats, g.scales, g.opacities, sh2, g.latent)
+    np.testing.assert_allclose(recoloured.sh[:, 0], level.merge(same_weights).sh[:, 0], atol=1e-5)
+    np.testing.assert_array_equal(recoloured.sh[:, 1:], kept.cloud.sh[:, 1:])
+    np.testing.assert_allclose(recoloured.means, kept.cloud.means, atol=1e-7)
 
 
 # --- what the person sees -----------------------------------------------------------------------------------

@@ -146,14 +146,21 @@ class Merge:
     cloud: PosedGaussians
     source_means: np.ndarray
     weights: sparse.csr_matrix
+    source_dc: np.ndarray | None = None  # the members' SH DC terms (N, 3) the merge was of
 
-    def shifted(self, means: np.ndarray) -> PosedGaussians:
-        """The merged cloud of a pose of the same cloud whose centres are `means`, to first order: each merged
-        centre moves by the weighted mean of its members' moves (exact for a cluster that only translates);
-        shapes, opacities and colours stay those of this merge (about a millisecond for the demo: a live image
-        of a new pose need not wait for its merge)."""
+    def shifted(self, means: np.ndarray, sh: np.ndarray | None = None) -> PosedGaussians:
+        """The merged cloud of a pose of the same cloud whose centres are `means` (and SH `sh`), to first order:
+        each merged centre moves by the weighted mean of its members' moves (exact for a cluster that only
+        translates) and, with `sh`, its base colour (the DC term) changes by theirs (exact for fixed weights);
+        shapes, opacities and the view-dependent bands stay those of this merge (about a millisecond for the
+        demo: a live image of a new pose need not wait for its merge)."""
         moved = np.asarray(means, dtype=np.float32).reshape(self.source_means.shape) - self.source_means
-        return replace(self.cloud, means=(self.cloud.means + self.weights @ moved).astype(np.float32))
+        out = replace(self.cloud, means=(self.cloud.means + self.weights @ moved).astype(np.float32))
+        if sh is not None and self.source_dc is not None:
+            dc = np.asarray(sh, dtype=np.float32)[:, 0, :] - self.source_dc
+            out.sh = self.cloud.sh.copy()
+            out.sh[:, 0, :] += self.weights @ dc
+        return out
 
 
 def _area(scales: np.ndarray) -> np.ndarray:
@@ -229,4 +236,4 @@ class LevelOfDetail:
             opacities=np.minimum(np.minimum(covered, stacked), 0.99).astype(np.float32),
             sh=np.ascontiguousarray(averaged[:, :k].reshape(self.clusters, sh.shape[1], 3)),
             latent=None if posed.latent is None else np.ascontiguousarray(averaged[:, k:]))
-        return Merge(cloud, np.array(posed.means, dtype=np.float32), mean_of32)
+        return Merge(cloud, np.array(posed.means, dtype=np.float32), mean_of32, np.array(sh[:, 0, :]))

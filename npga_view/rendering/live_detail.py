@@ -10,7 +10,7 @@ Every cloud the window shows is `submit`ted with its content version (kept, not 
 asks for the merged cloud of a version with `request(version)`: it is uploaded if it has been merged, else its
 merge is queued (a newer request replaces one not yet started) for a daemon thread that merges while the UI
 goes on (numpy releases the GIL in the heavy parts). Until it is merged, a newer pose is shown by the last merge
-moved along (`Merge.shifted`: every merged centre by its members' mean move, about a millisecond), so a live image
+moved along (`Merge.shifted`: every merged centre and base colour by its members' mean change, ~1 ms), so a live image
 of a new pose (a stream's packet, a slider step) never waits for its merge. `pending(version)` says that one is
 on its way, so the scheduler can wait a moment for it instead of drawing the full cloud (before the first merge),
 and `uploaded_version` which merged pose
@@ -104,7 +104,7 @@ class LiveDetail:
         base = self._base
         if self._uploaded != version and latest is not None and latest[0] == version and base is not None \
                 and len(latest[1]) == len(base.source_means):
-            self._upload(version, base.shifted(latest[1].means), shifted=True)
+            self._upload(version, base.shifted(latest[1].means, latest[1].sh), shifted=True)
         if self._request is not None and self._thread is None:
             self._thread = threading.Thread(target=self._run, name="npga-live-detail", daemon=True)
             self._thread.start()
