@@ -233,7 +233,8 @@ def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, sec
         done = w.until(lambda: _exact(app), 120)
         out["orbit_exact_after_s"] = None if done is None else time.perf_counter() - t0
         if sequence and cast("Avatar", app.avatar).dynamics is not None:
-            app.open_sequence(sequence)
+            if not app.open_sequence(sequence):
+                return {**out, "error": "; ".join(app.state.errors)}
             out.update(_playback(app, w, seconds, baked=False))
             app.state.timeline.playing = False
             app.state.actions.append(Bake())
