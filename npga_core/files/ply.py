@@ -105,17 +105,7 @@ def _header_line(words: list[str], elements: _Elements) -> str | None:
 
 def read_ply(path: str | Path) -> GaussianCloud:
     """Read a 3DGS `.ply` as a static cloud (no features, no dynamics); AvatarFileError on bad input."""
-    path = Path(path)
-    try:
-        return _read_ply(path)
-    except _Bad as e:
-        raise AvatarFileError(path, str(e)) from None
-    except FileNotFoundError:
-        raise AvatarFileError(path, "no such file") from None
-    except MemoryError:
-        raise AvatarFileError(path, "not enough memory to read its vertices") from None
-    except OSError as e:
-        raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None
+    return read_ply_extra(path, ())[0]
 
 
 def read_ply_bytes(data: bytes, where: str | Path) -> GaussianCloud:
