@@ -7,6 +7,7 @@ import os
 import time
 from collections.abc import Callable
 from pathlib import Path
+from typing import Any
 
 import pytest
 
@@ -31,6 +32,28 @@ def ctx():
         pytest.skip(f"no OpenGL 4.3 context: {exc}")
     yield context
     context.release()
+
+
+@pytest.fixture(scope="module", params=["43", "41"], ids=["gl43", "gl41"])
+def gl_path(request, ctx) -> str:
+    """The splat renderer path a test runs on, "43" and "41" in turn: the OpenGL 4.1 path (CPU pre-pass, texture
+    splats) forced on this machine's 4.3+ context, so every renderer test checks both. Where the context is older
+    than 4.3 (macOS), the 4.3 path is skipped. tests/view/test_gl41.py runs the 4.1 path in a real 4.1 context."""
+    if request.param == "43" and ctx.version_code < 430:
+        pytest.skip("the OpenGL 4.3 path needs a 4.3 context")
+    return request.param
+
+
+@pytest.fixture(scope="module")
+def make_renderer(ctx, gl_path) -> Callable[..., Any]:
+    """`make_renderer(width, height, exact_sort=True, context=None)`: a splat renderer on `gl_path`'s path (in
+    `ctx`, or in `context`) through npga_view.rendering.factory.create_renderer; the test releases it."""
+    from npga_view.rendering.factory import create_renderer
+
+    def make(width: int, height: int, exact_sort: bool = True, context: Any = None) -> Any:
+        return create_renderer(context if context is not None else ctx, width, height, exact_sort, path=gl_path)
+
+    return make
 
 
 @pytest.fixture(scope="session")

@@ -41,3 +41,11 @@ def off_centre_camera(eye, target=(0.0, 0.0, 0.0), fov=40.0) -> Camera:
     """A look_at camera with fx != fy and a principal point away from the image centre."""
     cam = look_at(eye, target, (0.0, 1.0, 0.0), fov, W, H)
     return Camera(cam.world_to_camera, cam.fx * 1.07, cam.fy, W / 2 + 5.3, H / 2 - 3.7, W, H)
+
+
+def accumulated(renderer) -> np.ndarray:
+    """The renderer's own image as drawn so far (RGBA float, premultiplied, before `present`), a copy. Read from
+    its private framebuffer: the renderers have no public read of an unfinished or sliced image (the one private
+    touch the renderer tests share, here once)."""
+    w, h = renderer.image_size
+    return renderer._read(renderer._fbo, 0, w, h).copy()

@@ -14,8 +14,8 @@ import pytest
 from npga_core.camera.cameras import frame_points
 from npga_core.model.gaussians import PosedGaussians
 from npga_core.model.synthetic import make_synthetic_avatar
-from npga_view.rendering.renderer import SplatRenderer
 from npga_view.rendering.scheduler import DrawScheduler, scaled_camera
+from tests.support.render import accumulated
 
 
 @pytest.fixture(scope="module")
@@ -24,16 +24,11 @@ def posed() -> PosedGaussians:
 
 
 @pytest.fixture(scope="module")
-def renderer(ctx, posed):
-    r = SplatRenderer(ctx, 64, 64)
+def renderer(make_renderer, posed):
+    r = make_renderer(64, 64)
     r.set_gaussians(posed)
     yield r
     r.release()
-
-
-def _image(r: SplatRenderer) -> np.ndarray:
-    w, h = r.image_size
-    return r._read(r._fbo, 0, w, h).copy()
 
 
 def test_points_path_equals_quads(renderer, posed):
@@ -48,13 +43,11 @@ def test_points_path_equals_quads(renderer, posed):
     np.testing.assert_array_equal(points, quads)
 
 
-@pytest.mark.parametrize("path", ["4.3", "4.1"])
-def test_points_of_turned_elongated_splats_equal_quads(ctx, path):
+def test_points_of_turned_elongated_splats_equal_quads(make_renderer, gl_path):
     """A GL point holds the bounding box of a splat's ellipse, not of its quad (splat_common.glsl point_side):
     thin opaque splats turned 0-90 degrees in the image, drawn as points, keep every pixel of the quad path, on
     both GL paths; the side is that of the ellipse's box (at 45 degrees 15 % smaller than the quad's box here)."""
     from npga_core.camera.cameras import look_at
-    from npga_view.rendering.renderer41 import SplatRenderer41
 
     angles = np.radians(np.arange(0.0, 91.0, 15.0))
     n = len(angles)
@@ -65,7 +58,7 @@ def test_points_of_turned_elongated_splats_equal_quads(ctx, path):
     sh[:, 0] = 1.0
     posed = PosedGaussians(means, quats, scales, np.full(n, 0.98, np.float32), sh)
     cam = look_at((0.0, 0.0, 1.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 60.0, 320, 120)
-    r = (SplatRenderer41 if path == "4.1" else SplatRenderer)(ctx, 64, 64)
+    r = make_renderer(64, 64)
     try:
         r.set_gaussians(posed)
         r.use_points = False
@@ -74,7 +67,7 @@ def test_points_of_turned_elongated_splats_equal_quads(ctx, path):
         points = r.render(cam)
         assert r.last_timings["points"] == 1.0 and quads.max() > 0.5
         np.testing.assert_array_equal(points, quads)
-        if not isinstance(r, SplatRenderer41):  # (the 4.3 path; tests/view/test_gl41.py runs this suite on 4.1 too)
+        if gl_path == "43":  # the 4.3 path's splat buffer: the point side against the quad's box
             sp = np.frombuffer(r._buffers["splats"].read(size=n * 64), np.float32).reshape(n, 16)
             quad_box = 2 * np.maximum(np.abs(sp[:, 4]) + np.abs(sp[:, 6]), np.abs(sp[:, 5]) + np.abs(sp[:, 7])) + 1
             turned = int(np.argmin(np.abs(angles - np.pi / 4)))
@@ -83,13 +76,13 @@ def test_points_of_turned_elongated_splats_equal_quads(ctx, path):
         r.release()
 
 
-def test_oversize_splats_fall_back_to_quads(ctx, posed):
+def test_oversize_splats_fall_back_to_quads(make_renderer, posed):
     """A splat larger than the largest GL point is drawn as a quad: the image still equals the quad path's."""
     big = PosedGaussians(posed.means.copy(), posed.quats.copy(), posed.scales.copy(), posed.opacities.copy(),
                          posed.sh.copy())
     big.scales[0] = 0.5  # half a metre: hundreds of pixels wide
     big.opacities[0] = 0.5
-    r = SplatRenderer(ctx, 64, 64)
+    r = make_renderer(64, 64)
     try:
         r.set_gaussians(big)
         cam = frame_points(posed.means, 400, 350)
@@ -106,14 +99,14 @@ def test_slices_compose_to_one_draw(renderer, posed, points):
     renderer.use_points = points
     cam = frame_points(posed.means, 200, 180, direction="three_quarter_right")
     renderer.draw(cam)
-    one = _image(renderer)
+    one = accumulated(renderer)
     renderer.begin_draw(cam)
     steps = 0
     while not renderer.continue_draw(0.0):  # the smallest budget: one minimal slice per call
         steps += 1
         assert renderer.drawing and 0.0 < renderer.progress < 1.0
     assert renderer.last_timings["slices"] >= 2 and steps >= 1
-    np.testing.assert_array_equal(_image(renderer), one)
+    np.testing.assert_array_equal(accumulated(renderer), one)
 
 
 def test_finished_image_stays_in_front_while_the_next_is_drawn(renderer, posed):
@@ -121,12 +114,12 @@ def test_finished_image_stays_in_front_while_the_next_is_drawn(renderer, posed):
     front = frame_points(posed.means, 120, 100, direction="front")
     side = frame_points(posed.means, 120, 100, direction="right")
     renderer.draw(front)
-    first = _image(renderer)
+    first = accumulated(renderer)
     renderer.begin_draw(side)
     assert not renderer.continue_draw(0.0)
-    np.testing.assert_array_equal(_image(renderer), first)  # the unfinished side view is not shown
+    np.testing.assert_array_equal(accumulated(renderer), first)  # the unfinished side view is not shown
     renderer.continue_draw(math.inf)
-    assert not np.array_equal(_image(renderer), first)
+    assert not np.array_equal(accumulated(renderer), first)
 
 
 def test_another_prepass_drops_the_unfinished_image(renderer, posed):
@@ -159,10 +152,10 @@ def test_scheduler_reduces_scale_while_live_and_refines_after(renderer, posed):
         frames += 1
         assert frames < 2000
     assert sched.scale == 1.0 and sched.status == "exact" and renderer.image_size == (240, 200)
-    refined = _image(renderer)
+    refined = accumulated(renderer)
     assert not sched.frame(cam, "rgb", content_version=version, interacting=False, now=t)  # nothing to draw
     renderer.draw(cam)
-    np.testing.assert_array_equal(refined, _image(renderer))
+    np.testing.assert_array_equal(refined, accumulated(renderer))
 
 
 def test_scheduler_labels_a_preview_pose_until_the_exact_one(renderer, posed):

@@ -112,10 +112,8 @@ def test_pack_rgba8_byte_order() -> None:
 
 
 @pytest.fixture
-def renderer(ctx):
-    from npga_view.rendering.renderer import SplatRenderer
-
-    r = SplatRenderer(ctx, W, H)
+def renderer(make_renderer):
+    r = make_renderer(W, H)
     yield r
     r.release()
 

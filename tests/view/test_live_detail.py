@@ -16,8 +16,8 @@ import pytest
 from npga_core.camera.cameras import frame_points
 from npga_core.model.synthetic import make_synthetic_avatar
 from npga_view.rendering.live_detail import LiveDetail
-from npga_view.rendering.renderer import SplatRenderer
 from npga_view.rendering.scheduler import DrawScheduler
+from tests.support.render import accumulated
 
 CLUSTERS = 1024
 
@@ -28,16 +28,16 @@ def avatar():
 
 
 @pytest.fixture()
-def full(ctx, avatar):
-    r = SplatRenderer(ctx, 64, 64)
+def full(make_renderer, avatar):
+    r = make_renderer(64, 64)
     r.set_gaussians(avatar.pose())
     yield r
     r.release()
 
 
 @pytest.fixture()
-def lod(ctx, full):
-    detail = LiveDetail(lambda: SplatRenderer(ctx, 64, 64), full, clusters=CLUSTERS)
+def lod(make_renderer, full):
+    detail = LiveDetail(lambda: make_renderer(64, 64), full, clusters=CLUSTERS)
     yield detail
     detail.close()
 
@@ -50,11 +50,6 @@ def _wait_for(cond, timeout: float = 60.0) -> bool:
             return True
         time.sleep(0.005)
     return False
-
-
-def _image(r: SplatRenderer) -> np.ndarray:
-    w, h = r.image_size
-    return r._read(r._fbo, 0, w, h).copy()
 
 
 def test_a_requested_cloud_is_merged_in_the_thread(lod, avatar):
@@ -134,9 +129,9 @@ def test_live_images_come_from_the_merged_cloud_and_the_exact_one_from_all(lod, 
     full.set_gaussians(pose4)
     sched.frame(moved, "rgb", content_version=4, interacting=False, now=1.0)
     assert sched.settled and sched.status == "exact" and sched.shown_merged == 0 and sched.scale == 1.0
-    exact = _image(full)
+    exact = accumulated(full)
     full.draw(moved)
-    np.testing.assert_array_equal(exact, _image(full))
+    np.testing.assert_array_equal(exact, accumulated(full))
 
 
 class _SlowMerge:

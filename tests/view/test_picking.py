@@ -14,10 +14,8 @@ W, H = 64, 80
 
 
 @pytest.fixture
-def renderer(ctx):
-    from npga_view.rendering.renderer import SplatRenderer
-
-    r = SplatRenderer(ctx, W, H)
+def renderer(make_renderer):
+    r = make_renderer(W, H)
     yield r
     r.release()
 

@@ -18,10 +18,8 @@ MIN_PSNR = 40.0
 
 
 @pytest.fixture
-def renderer(ctx):
-    from npga_view.rendering.renderer import SplatRenderer
-
-    r = SplatRenderer(ctx, W, H)
+def renderer(make_renderer):
+    r = make_renderer(W, H)
     yield r
     r.release()
 
@@ -108,15 +106,14 @@ def test_synthetic_avatar(renderer):
         check_scene(renderer, g, frame_points(g.means, W, H, direction=direction), background=(1.0, 1.0, 1.0))
 
 
-def test_demo_avatar(ctx):
+def test_demo_avatar(make_renderer):
     from npga_core.files.loading import DEMO_AVATAR, load_avatar
-    from npga_view.rendering.renderer import SplatRenderer
 
     if not DEMO_AVATAR.is_file():
         pytest.skip(f"demo avatar not built ({DEMO_AVATAR})")
     g = load_avatar("demo").pose(None)
     cam = frame_points(g.means, 110, 160)
-    r = SplatRenderer(ctx, cam.width, cam.height)
+    r = make_renderer(cam.width, cam.height)
     try:
         check_scene(r, g, cam, background=(1.0, 1.0, 1.0), tight=len(g) <= 50_000)
     finally:
@@ -217,16 +214,14 @@ def test_flipped_draw_and_present(ctx, renderer):
         tex.release()
 
 
-def test_camera_move_resorts_without_reupload(renderer, ctx):
-    from npga_view.rendering.renderer import SplatRenderer
-
+def test_camera_move_resorts_without_reupload(renderer, make_renderer):
     g = random_cloud(800, seed=11)
     renderer.set_gaussians(g)
     cams = [off_centre_camera((0.0, 0.0, 3.0)), off_centre_camera((3.0, 0.5, 0.0)), off_centre_camera((0, 0, -3))]
     images = [renderer.render(c) for c in cams]
     assert renderer.attribute_uploads == 1
     assert {"sort", "upload", "preprocess", "draw"} <= set(renderer.last_timings)
-    fresh = SplatRenderer(ctx, W, H)
+    fresh = make_renderer(W, H)
     try:
         for cam, image in zip(cams, images, strict=True):
             fresh.set_gaussians(g)
@@ -313,9 +308,8 @@ def test_cli_render_png_and_errors(ctx, tmp_path, small_npga, capsys):
 
 
 # --- contexts --------------------------------------------------------------------------------------------
-def test_two_contexts_do_not_interfere(ctx, renderer):
+def test_two_contexts_do_not_interfere(renderer, make_renderer):
     from npga_view.rendering.gl import create_headless_context
-    from npga_view.rendering.renderer import SplatRenderer
 
     g = random_cloud(300, seed=13)
     cam = off_centre_camera((0.0, 0.0, 3.0))
@@ -323,7 +317,7 @@ def test_two_contexts_do_not_interfere(ctx, renderer):
     first = renderer.render(cam)
     other_ctx = create_headless_context()
     try:
-        other = SplatRenderer(other_ctx, W, H)
+        other = make_renderer(W, H, context=other_ctx)
         other.set_gaussians(random_cloud(300, seed=14))
         other.render(cam)
         np.testing.assert_array_equal(renderer.render(cam), first)  # switches back to its own context
