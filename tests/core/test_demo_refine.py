@@ -133,9 +133,9 @@ def test_targets_colour_the_surface_like_the_gaussians() -> None:
     hr = HeadRenderer(head, canon, albedo)
     cam = look_at((0.0, 0.0, 0.9), (0.0, 0.0, 0.0), width=64, height=64, fov_y_deg=20)
     w0 = np.zeros(head.n_expressions, np.float32)
-    verts, normals, fv = hr._posed(w0)
+    verts, normals, fv = hr.posed_mesh(w0)
     face = s.part == 0
-    got = hr._shade(verts, normals, fv, s.tri[face], s.bary[face].astype(np.float64), w0, cam)
+    got = hr.shade(verts, normals, fv, s.tri[face], s.bary[face].astype(np.float64), w0, cam)
     dirs = s.points[face] - cam.camera_center
     dirs /= np.linalg.norm(dirs, axis=1, keepdims=True)
     want = sh_colour(canon.cloud.sh[face].astype(np.float64), dirs)

@@ -68,7 +68,7 @@ def test_close_twice_and_dropping_an_engine_stop_the_worker(small_npga):
     a, eng = _engine(small_npga)
     eng.request(a.neutral_code())
     eng.wait().release()
-    names, proc = eng.shm_names, eng._proc
+    names, proc = eng.shm_names, eng.process
     eng.close()
     eng.close()
     assert not proc.is_alive() and not any(_shm_exists(n) for n in names)
@@ -76,7 +76,7 @@ def test_close_twice_and_dropping_an_engine_stop_the_worker(small_npga):
     a, eng = _engine(small_npga)
     eng.request(a.neutral_code())
     eng.wait().release()
-    names, proc = eng.shm_names, eng._proc
+    names, proc = eng.shm_names, eng.process
     del eng
     gc.collect()
     end = time.monotonic() + 60  # a bound on waiting, not a speed

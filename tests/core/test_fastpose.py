@@ -119,11 +119,11 @@ def test_first_layer_cache_is_shared_and_invalidated():
     a = make_synthetic_avatar(300, seed=2)
     poser = FastPoser(a, first_layer="cache")
     assert poser.cache_bytes == 300 * 256 * 4 * 2
-    assert all(poser.rows.first[k] is a._first_layer[k] for k in ("F", "G"))
+    assert all(poser.rows.first[k] is a.first_layer_cache[k] for k in ("F", "G"))
     assert FastPoser(a, first_layer="auto", cache_mb=0.1).first_layer == "recompute"
     v = a.version
     a.invalidate_caches()
-    assert a.version == v + 1 and not a._first_layer
+    assert a.version == v + 1 and not a.first_layer_cache
     with pytest.raises(RuntimeError, match="edited"):
         poser.offsets(a.neutral_code())
 
@@ -156,11 +156,11 @@ def test_relu_chain_with_large_biases_matches_float64(kernel):
                 layer.bias.normal_(0.0, 0.5)
     a.invalidate_caches()
     poser = FastPoser(a, chunk=128, threads=2, kernel=kernel)
-    chains = poser._lanes[0].chains.values()
+    chains = poser.chains.values()
     assert all((c.folded is not None, c.packed is not None) == (kernel == "aten", kernel == "onednn")
                for c in chains)
     z = a.expression.sample(np.random.default_rng(5))
-    t = a._tensors()
+    t = a.canonical_tensors()
     got = poser.offsets(z).double()
     mu, f, zz = t["means"].double(), t["features"].double(), torch.from_numpy(z).double()
     ref = torch.cat(list(copy.deepcopy(a.dynamics).double().offsets(mu, f, zz).totals().values()), 1).detach()

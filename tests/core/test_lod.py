@@ -231,7 +231,7 @@ def test_shifted_merge_follows_moved_centres():
     bent = g.means + 0.01 * np.sin(3.0 * g.means[:, [1, 2, 0]]).astype(np.float32)
     shifted = kept.shifted(bent)
     w = g.opacities * np.cbrt(np.prod(g.scales.astype(np.float64), axis=1)) ** 2
-    labels = level._labels
+    labels = level.labels
     move = np.stack([np.bincount(labels, w * (bent - g.means)[:, k], level.clusters) for k in range(3)], 1)
     move /= np.bincount(labels, w, level.clusters)[:, None]
     np.testing.assert_allclose(shifted.means - kept.cloud.means, move, atol=1e-6)

@@ -278,7 +278,7 @@ def test_console_entry_point(kind, world, tmp_path):
     avatar = str(world["avatar"])
     if kind == "npy huge shape":
         p = tmp_path / "huge.npy"
-        p.write_bytes(hc._npy_header((10**9, 10**6)))
+        p.write_bytes(hc.npy_header((10**9, 10**6)))
         argv = ["export", avatar, "--out", str(tmp_path / "o.ply"), "--expr", str(p)]
     else:
         p = tmp_path / "fifo.npga"

@@ -31,7 +31,7 @@ def _capture(root: Path) -> Path:
     (root / "camera_params.json").write_text(json.dumps(rig))
     images = root / "timesteps" / "frame_00000" / "images"
     images.mkdir(parents=True)
-    (images / "cam_A.png").write_bytes(hr._png(16, 12))
+    (images / "cam_A.png").write_bytes(hr.png(16, 12))
     return root
 
 

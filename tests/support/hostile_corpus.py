@@ -39,7 +39,7 @@ def _npy(arr: np.ndarray) -> bytes:
     return buf.getvalue()
 
 
-def _npy_header(shape: tuple, descr: str = "<f4", version: tuple[int, int] = (1, 0)) -> bytes:
+def npy_header(shape: tuple, descr: str = "<f4", version: tuple[int, int] = (1, 0)) -> bytes:
     """A valid .npy header claiming `shape` of `descr`, with no data after it."""
     buf = io.BytesIO()
     d = {"descr": descr, "fortran_order": False, "shape": shape}
@@ -80,9 +80,9 @@ def npy_codes(folder: Path, dim: int) -> dict[str, Path]:
     good = np.zeros((4, dim), np.float32)
     raw = _npy(good)
     cases = {
-        "huge claimed shape": _npy_header((10**9, 10**6)),
-        "huge claimed shape, version 2 header": _npy_header((2**40, dim), version=(2, 0)),
-        "claims more than the file holds": _npy_header((1000, dim)) + bytes(64),
+        "huge claimed shape": npy_header((10**9, 10**6)),
+        "huge claimed shape, version 2 header": npy_header((2**40, dim), version=(2, 0)),
+        "claims more than the file holds": npy_header((1000, dim)) + bytes(64),
         "truncated data": raw[:-7],
         "truncated header": raw[:20],
         "header is not a dict": b"\x93NUMPY\x01\x00\x10\x00" + b"__import__('os')\n",
@@ -116,7 +116,7 @@ def _zip_bomb(dim: int) -> bytes:
     """A deflated member whose header claims 4 GB of codes (zeros compress ~1000:1)."""
     buf = io.BytesIO()
     with zipfile.ZipFile(buf, "w", zipfile.ZIP_DEFLATED) as zf, zf.open("codes.npy", "w", force_zip64=True) as m:
-        m.write(_npy_header((2**30 // dim * 4, dim)))
+        m.write(npy_header((2**30 // dim * 4, dim)))
         zero = bytes(1 << 20)
         for _ in range(64):  # 64 MiB of zeros, ~64 KiB compressed; the header claims far more
             m.write(zero)
@@ -129,7 +129,7 @@ def npz_sequences(folder: Path, dim: int) -> dict[str, Path]:
     codes = _npy(np.zeros((4, dim), np.float32))
     good = _zip({"codes.npy": codes, "fps.npy": _npy(np.float64(25.0))})
     cases = {
-        "member claims a huge shape": _zip({"codes.npy": _npy_header((10**9, 10**6))}),
+        "member claims a huge shape": _zip({"codes.npy": npy_header((10**9, 10**6))}),
         "deflated member claims 4 GB": _zip_bomb(dim),
         "member truncated": _zip({"codes.npy": codes[:-9]}),
         "1000 members": _zip({f"m{i}.npy": codes for i in range(1000)}),
@@ -169,7 +169,7 @@ def mononphm_folders(folder: Path, dim: int) -> dict[str, Path]:
     marker = folder / MARKER
     ok = _npy(np.zeros((1, dim), np.float32))
     frames: dict[str, list[bytes | str]] = {
-        "z_exp claims a huge shape": [_npy_header((10**9, 10**6)), ok],
+        "z_exp claims a huge shape": [npy_header((10**9, 10**6)), ok],
         "z_exp truncated": [ok, ok[:-5]],
         "z_exp complex": [ok, _npy(np.ones((1, dim), np.complex64))],
         "z_exp object (pickle)": [_npy(_pickled(marker)), ok],
@@ -530,7 +530,7 @@ def preview_caches(folder: Path, good: Path) -> dict[str, Path]:
     cases = {
         "meta pickled": with_members(meta=_npy(_pickled(marker))),
         "probes pickled": with_members(probes=_npy(_pickled(marker))),
-        "weights claim a huge shape": with_members(weights=_npy_header((10**9, 8))),
+        "weights claim a huge shape": with_members(weights=npy_header((10**9, 8))),
         "neighbour index out of range": with_members(neighbours=_npy(bad_idx)),
         "negative probe": with_members(probes=_npy(np.r_[-1, probes[1:]])),
         "probes not ascending": with_members(probes=_npy(probes[::-1].copy())),

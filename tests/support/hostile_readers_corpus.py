@@ -264,9 +264,9 @@ def gha_params(folder: Path, exp_dim: int) -> dict[str, Path]:
             arrays = {**ok, **change} if isinstance(change, dict) and t == 1 else ok
             members = {f"{k}.npy": _npy(np.asarray(v)) for k, v in arrays.items()}
             if change == "huge" and t == 1:
-                from tests.support.hostile_corpus import _npy_header
+                from tests.support.hostile_corpus import npy_header
 
-                members["exp_coeff.npy"] = _npy_header((10**12, exp_dim))
+                members["exp_coeff.npy"] = npy_header((10**12, exp_dim))
             buf = io.BytesIO()
             with zipfile.ZipFile(buf, "w") as zf:
                 for k, v in members.items():
@@ -280,7 +280,7 @@ def gha_params(folder: Path, exp_dim: int) -> dict[str, Path]:
 
 
 # == multi-view captures (`evaluate --capture`; read by npga_core.evaluation.capture) ===========================
-def _png(width: int, height: int, rows: bytes | None = None, grey: bool = False) -> bytes:
+def png(width: int, height: int, rows: bytes | None = None, grey: bool = False) -> bytes:
     def chunk(kind: bytes, data: bytes) -> bytes:
         return struct.pack(">I", len(data)) + kind + data + struct.pack(">I", zlib.crc32(kind + data) & 0xFFFFFFFF)
 
@@ -313,7 +313,7 @@ def captures(folder: Path) -> dict[str, Path]:
     w2c = np.eye(4)
     w2c[2, 3] = 1.0
     rig = {"world_2_cam": {"A": w2c.tolist(), "B": w2c.tolist()}, "intrinsics": k}
-    good = _png(16, 12)
+    good = png(16, 12)
     nersemble: dict[str, tuple[bytes | dict, dict[str, bytes | str]]] = {
         "rig: an integer of 5000 digits": (json.dumps(rig).replace("20.0", "9" * 5000, 1).encode(), {}),
         "rig: NaN intrinsics": (json.dumps(rig).replace("20.0", "NaN", 1).encode(), {}),
@@ -324,7 +324,7 @@ def captures(folder: Path) -> dict[str, Path]:
         "partial: camera B's image missing": (rig, {"A": good}),
         "partial: camera B's image a FIFO": (rig, {"A": good, "B": "fifo"}),
         "partial: camera B's image truncated": (rig, {"A": good, "B": good[:40]}),
-        "partial: camera B's PNG claims 100000x100000": (rig, {"A": good, "B": _png(100000, 100000, b"\0")}),
+        "partial: camera B's PNG claims 100000x100000": (rig, {"A": good, "B": png(100000, 100000, b"\0")}),
         "partial: camera B's image is text": (rig, {"A": good, "B": b"not an image"}),
         # #36: libjpeg decodes a cut JPEG as grey and says so only on stderr: it was scored silently
         "partial: camera B's JPEG truncated": (rig, {"A": good, "B": _jpeg(16, 12)[:-40]}),
@@ -357,7 +357,7 @@ def captures(folder: Path) -> dict[str, Path]:
         "partial: camera 01 pickled": ("pickle", good),
         "partial: camera 01 missing": ("missing", good),
         "partial: image 01 a FIFO": ({"extrinsic": ext, "intrinsic": kk}, "fifo"),
-        "partial: image 01 claims 100000x100000": ({"extrinsic": ext, "intrinsic": kk}, _png(100000, 100000, b"\0")),
+        "partial: image 01 claims 100000x100000": ({"extrinsic": ext, "intrinsic": kk}, png(100000, 100000, b"\0")),
         # #36: OpenCV's reader crashed (SIGSEGV) on a path that is not UTF-8; camera 01 here is a usable view named
         # by an undecodable byte, the problem line is camera 02's (no camera file)
         "partial: a camera id that is not UTF-8": ("undecodable", good),

@@ -35,7 +35,7 @@ def run_until(app, cond, timeout=60.0):
 
 def settle(app, frames=3):
     """Step until no pose is pending and the splats were redrawn, then a few more frames."""
-    assert run_until(app, lambda: app.engine is None or (app.engine.pending is None and not app._dirty))
+    assert run_until(app, lambda: app.engine is None or (app.engine.pending is None and app.draws.settled))
     for _ in range(frames):
         app.step()
 

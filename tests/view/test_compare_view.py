@@ -82,7 +82,8 @@ def test_capture_view_is_drawn_in_slices_at_the_capture_camera_and_scored_like_e
         r.set_gaussians(demo.pose(None))
         expected = r.render(cam, BG)
         # scored as evaluate scores: the capture's image and alpha mask, the same background
-        captured = view._prepared.capture
+        assert view.prepared is not None
+        captured = view.prepared.capture
         # shown as scored: both composited over the background outside the capture's mask
         shown = composite_background(expected, captured.mask, BG).astype(np.float32)
         np.testing.assert_allclose(view.composed(), shown, atol=1e-5)

@@ -257,7 +257,7 @@ assert app.open_avatar(sys.argv[1])
 end = time.monotonic() + 120
 while time.monotonic() < end:
     app.step()
-    if app.engine is not None and app.engine.pending is None and not app._dirty and app.info.image_status == "exact":
+    if app.engine is not None and app.engine.pending is None and app.draws.settled and app.info.image_status == "exact":
         break
 for _ in range(5):
     app.step()

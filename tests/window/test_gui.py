@@ -311,7 +311,7 @@ def test_ctrl_drag_selects_delete_and_undo(app, avatar_path):
     n = len(app.avatar)
     before = app.read_window(viewport_only=True)
     io = imgui.get_io()
-    x, _, w, h = app._viewport()  # framebuffer pixels; the Xvfb window has scale 1
+    x, _, w, h = app.window.viewport()  # framebuffer pixels; the Xvfb window has scale 1
     cx, cy = x + w / 2, h / 2
     io.add_mouse_pos_event(cx - 60, cy - 60)
     io.add_key_event(imgui.Key.mod_ctrl, True)
@@ -351,7 +351,7 @@ def test_inspect_mode_and_pick_in_the_window(app, avatar_path):
     feat = app.read_window(viewport_only=True)
     assert np.abs(feat.astype(int) - rgb.astype(int)).max(axis=2).mean() > 10
     assert app.info.inspect is not None and app.info.inspect.colouring is not None
-    x, _, w, h = app._viewport()
+    x, _, w, h = app.window.viewport()
     idx = app.pick(w / 2, h / 2)
     assert idx is not None and 0 <= idx < len(app.avatar)
     settle(app)
@@ -359,7 +359,7 @@ def test_inspect_mode_and_pick_in_the_window(app, avatar_path):
     assert rec is not None and app.info.inspect.counts.total == len(app.avatar)
     app.state.actions.append(A.FocusGaussian(idx))
     app.step()
-    np.testing.assert_allclose(app.state.camera.target, app._posed.means[idx], atol=1e-6)
+    np.testing.assert_allclose(app.state.camera.target, app.shown_posed().means[idx], atol=1e-6)
 
 
 def test_sequence_head_pose_moves_the_view(app, tmp_path):
