@@ -20,6 +20,8 @@ from npga_view.cli.main import main
 from tests.support.captures import FRAMES, SERIALS, capture_cameras, ssim_reference, write_capture
 from tests.support.reference_rasterizer import rasterize
 
+pytestmark = pytest.mark.slow  # a module fixture takes over 10 s
+
 
 @pytest.fixture(scope="module")
 def capture(tmp_path_factory) -> Path:

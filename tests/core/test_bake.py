@@ -75,6 +75,7 @@ def _engine(path, a, tmp_path):
                       cache_dir=str(tmp_path))
 
 
+@pytest.mark.slow
 def test_engine_bakes_plays_and_reuses_the_cache(small_npga, tmp_path):
     a = read_avatar(small_npga)
     codes = _codes(a, 6, 0)
@@ -103,6 +104,7 @@ def test_engine_bakes_plays_and_reuses_the_cache(small_npga, tmp_path):
     assert cache_path(small_npga, key, tmp_path).is_file()
 
 
+@pytest.mark.slow
 def test_cache_follows_the_avatar_content_not_the_file(small_npga, tmp_path):
     a = read_avatar(small_npga)
     codes = _codes(a, 4, 2)
@@ -130,6 +132,7 @@ def test_cache_follows_the_avatar_content_not_the_file(small_npga, tmp_path):
     assert not bake()
 
 
+@pytest.mark.slow
 def test_frame_asked_just_before_a_cancel_is_answered(small_npga, tmp_path):
     """A frame request and a cancel that reach the worker together: the frame comes from the bake, no error
     (the viewer showed "no baked sequence" when the bake was dropped during baked playback)."""

@@ -399,6 +399,7 @@ SLOW_SAVE = textwrap.dedent("""
 """)
 
 
+@pytest.mark.slow
 def test_a_killed_save_leaves_the_old_file_intact(tmp_path):
     src = tmp_path / "avatar.npga"
     save_avatar(small(2000), src)

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from npga_core.files.checkpoint import read_avatar
 from npga_core.posing.engine import PoseEngine
@@ -13,6 +14,7 @@ def _engine(path):
     return a, PoseEngine(str(path), len(a.cloud), a.cloud.sh.shape[1], a.cloud.latent_dim, threads=1)
 
 
+@pytest.mark.slow
 def test_worker_result_equals_in_process_pose(small_npga):
     a, eng = _engine(small_npga)
     with eng:
@@ -27,6 +29,7 @@ def test_worker_result_equals_in_process_pose(small_npga):
         r.release()
 
 
+@pytest.mark.slow
 def test_newest_request_wins(small_npga):
     a, eng = _engine(small_npga)
     with eng:
@@ -38,6 +41,7 @@ def test_newest_request_wins(small_npga):
         r.release()
 
 
+@pytest.mark.slow
 def test_wrong_dimension_reported_not_fatal(small_npga):
     a, eng = _engine(small_npga)
     with eng:
@@ -59,6 +63,7 @@ def _shm_exists(name: str) -> bool:
     return True
 
 
+@pytest.mark.slow
 def test_close_twice_and_dropping_an_engine_stop_the_worker(small_npga):
     """close() is idempotent; an engine dropped without close() still stops its worker and unlinks its slots
     (weakref.finalize, also run at interpreter exit)."""

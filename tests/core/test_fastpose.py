@@ -31,6 +31,7 @@ def _assert_posed_close(dest: dict, ref, rtol: float = 1e-4, atol: float = 2e-6)
             np.testing.assert_allclose(dest[name], getattr(ref, name), rtol=rtol, atol=atol, err_msg=name)
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("first_layer", ["cache", "recompute"])
 @pytest.mark.parametrize("threads", [1, 2])
 @pytest.mark.parametrize("kernel", KERNELS)

@@ -133,6 +133,7 @@ def test_bad_scale_is_refused(tmp_path):
     assert "\n" not in str(e.value) and str(tmp_path / "s.npzseq") in str(e.value)
 
 
+@pytest.mark.slow
 def test_render_cli_head_pose(tmp_path, capsys):
     """`render --head-pose`: frame 0 relative is the unmoved picture; the absolute pose of frame k equals
     rendering with the camera moved by T_k (npy output: exact floats); errors are one line, exit 2."""

@@ -128,6 +128,7 @@ def test_version_4_round_trip_and_refusals(tmp_path):
         read_avatar(write_npga(tmp_path / "bad2.npga", h, bytes(raw)))
 
 
+@pytest.mark.slow
 def test_worker_poses_a_rig_as_the_avatar_does(tmp_path):
     from npga_core.posing.engine import PoseEngine
 

@@ -239,6 +239,7 @@ def test_shifted_merge_follows_moved_centres():
 
 
 # --- what the person sees -----------------------------------------------------------------------------------
+@pytest.mark.slow
 def test_merged_demo_looks_like_full(ctx, tmp_path):
     from npga_core.camera.cameras import frame_points
     from npga_core.files.loading import DEMO_AVATAR, load_avatar

@@ -55,6 +55,7 @@ def test_without_native_bf16_auto_takes_the_unchanged_fp32_path(monkeypatch):
         np.testing.assert_array_equal(getattr(got, name), getattr(ref, name), err_msg=name)
 
 
+@pytest.mark.slow
 @needs_bf16
 def test_bf16_offsets_close_to_fp32_and_auto_falls_back_past_the_tolerance(monkeypatch):
     a = make_synthetic_avatar(3000, latent_dim=2, seed=12)
@@ -98,6 +99,7 @@ def _sequence_psnr(ctx, avatar, codes: np.ndarray, width: int, height: int) -> l
     return out
 
 
+@pytest.mark.slow
 @needs_bf16
 def test_bf16_demo_images_match_fp32_over_a_sequence(ctx):
     if not DEMO_AVATAR.is_file():
@@ -109,6 +111,7 @@ def test_bf16_demo_images_match_fp32_over_a_sequence(ctx):
     assert min(psnrs) >= 45.0, psnrs
 
 
+@pytest.mark.slow
 @needs_bf16
 def test_bf16_100k_images_match_fp32_over_a_walk(ctx):
     avatar = make_synthetic_avatar(100_000, seed=14)

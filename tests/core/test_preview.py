@@ -92,6 +92,7 @@ def test_model_cache_is_keyed_by_content(setup, tmp_path):
     assert PreviewModel.load(tmp_path / "missing.npz", a.content_key(), len(a)) is None
 
 
+@pytest.mark.slow
 def test_engine_previews_then_refines_to_the_exact_pose(small_npga, tmp_path):
     a = read_avatar(small_npga)
     opts = {"instant_ms": 0.0, "probes": 64, "fit_codes": 2, "cache_dir": str(tmp_path)}
@@ -128,6 +129,7 @@ def test_engine_previews_then_refines_to_the_exact_pose(small_npga, tmp_path):
         assert eng.status.get("preview_model") == "cached"
 
 
+@pytest.mark.slow
 def test_refinement_waits_for_a_pause_without_newer_requests(small_npga, tmp_path):
     """The exact refinement of a preview starts only after `refine_delay_ms` without a newer request (the window's
     image of the preview gets the cores first): previews of a drag in between are answered, each refinement

@@ -257,6 +257,7 @@ def test_bad_json_is_one_line_naming_the_file(tmp_path, doc, match):
 # ------------------------------------------------------------------------------------------ the demo
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not DEMO_AVATAR.is_file(), reason="demo not built")
 def test_export_of_a_take_frame_equals_export_of_its_code(tmp_path):
     from npga_core.demo.basis import bundled_basis
@@ -286,6 +287,7 @@ def test_export_of_a_take_frame_equals_export_of_its_code(tmp_path):
     np.testing.assert_allclose(a.means, c.means, atol=1e-5)
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not DEMO_AVATAR.is_file(), reason="demo not built")
 def test_eye_blink_left_closes_the_demos_left_eye(tmp_path):
     from npga_core.files.loading import load_avatar
@@ -339,6 +341,7 @@ def test_the_demo_file_carries_its_basis():
     assert read_header(DEMO_AVATAR)[0]["format_version"] == 3
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not DEMO_AVATAR.is_file(), reason="demo not built")
 def test_every_frame_of_each_take_layout_poses_the_demo_as_its_weights_say(tmp_path, capsys):
     """Both CSV column orders and a JSON take: every frame's code is the demo's map of its weights, and `export

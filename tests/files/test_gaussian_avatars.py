@@ -163,6 +163,7 @@ def _cli(*args, cwd: Path) -> subprocess.CompletedProcess:
                           text=True, cwd=cwd, env=env, timeout=300)
 
 
+@pytest.mark.slow
 def test_cli_import_and_info(world, tmp_path):
     out = tmp_path / "a.npga"
     r = _cli("import", "gaussian-avatars", world["folder"], "--flame-model", world["pickles"]["chumpy"], "--out", out,
@@ -173,6 +174,7 @@ def test_cli_import_and_info(world, tmp_path):
     assert info.returncode == 0 and "FLAME licence" in info.stdout and "triangles" in info.stdout
 
 
+@pytest.mark.slow
 def test_hostile_flame_pickles(world, tmp_path):
     from tests.support.hostile_readers_corpus import flame_pickles
 

@@ -412,6 +412,7 @@ def cli(tmp_path_factory: pytest.TempPathFactory):
     server.proc.stdout.close()  # (ForkServer.close leaves its reply pipe open)
 
 
+@pytest.mark.slow
 def test_hostile_zips_through_npga_view_info(hostile: dict[str, Path], cli) -> None:
     """`npga-view info BAD.zip` (a forked child per zip, 1 GiB address-space limit): exit 2, one line on stderr
     naming the zip, no traceback."""

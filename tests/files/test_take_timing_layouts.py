@@ -158,6 +158,7 @@ def test_info_describes_a_take(tmp_path):
     assert "never moving (<= 0.01): 51" in r.stdout and "head pose: none recorded" in r.stdout
 
 
+@pytest.mark.slow
 @pytest.mark.skipif(not DEMO_AVATAR.is_file(), reason="demo not built")
 def test_render_prints_notes_once_as_one_line_each(tmp_path):
     p = tmp_path / "take.csv"

@@ -285,6 +285,7 @@ def test_cli_reports_bad_pose_on_one_line(tmp_path, avatar_file, capsys):
     assert len(err.splitlines()) == 1 and "scale must be finite and positive" in err and str(p) in err
 
 
+@pytest.mark.slow
 @pytest.mark.gui
 def test_window_turns_a_mononphm_head_the_right_way(app, avatar_path, tmp_path):
     """The demo head in the window, a MonoNPHM sequence whose frame 1 has rot.npy = a 30-degree turn about y:

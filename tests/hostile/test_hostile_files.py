@@ -223,6 +223,7 @@ def _check(name: str, target: Path, spec: dict, world: dict, folder: Path, env: 
     return f"{name}: {'; '.join(problems)} | {text.strip()[-300:]!r}" if problems else None
 
 
+@pytest.mark.slow
 @pytest.mark.parametrize("reader", list(READERS))
 def test_hostile_corpus(reader, world, tmp_path):
     build, spec = READERS[reader]

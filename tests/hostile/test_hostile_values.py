@@ -127,6 +127,7 @@ def _cpu_seconds(pid: int) -> float:
     return (int(fields[11]) + int(fields[12])) / os.sysconf("SC_CLK_TCK")
 
 
+@pytest.mark.slow
 def test_sigterm_ends_a_render_inside_a_cnn_of_minutes(tmp_path):
     """A valid avatar whose CNN's costs are within the header bounds but take minutes on a CPU (a 15x15
     convolution of 192 -> 192 channels at 800x600, one call into C of ~3 CPU-minutes): SIGTERM while the render

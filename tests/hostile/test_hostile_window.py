@@ -127,6 +127,7 @@ def test_window_shows_names_of_any_encoding(display, tmp_path, monkeypatch):
         app.close()
 
 
+@pytest.mark.slow
 def test_window_with_an_avatar_of_0_gaussians(display, tmp_path, monkeypatch):
     """A degenerate but valid avatar of 0 Gaussians, from a file and left by deleting every Gaussian in the
     window: it opens, its pose arrives, the view is the background only, the panels say "0 Gaussians", its edits

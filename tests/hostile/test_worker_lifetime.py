@@ -180,6 +180,7 @@ def avatar_file(tmp_path_factory) -> Path:
 
 
 # -- an owner without any signal handling ---------------------------------------------------------------------
+@pytest.mark.slow
 @pytest.mark.parametrize("sig", [signal.SIGKILL, signal.SIGTERM, signal.SIGINT], ids=lambda s: s.name)
 def test_worker_exits_when_its_owner_dies(sig, avatar_file, tmp_path):
     script = tmp_path / "owner.py"
@@ -200,6 +201,7 @@ def test_worker_exits_when_its_owner_dies(sig, avatar_file, tmp_path):
 
 
 # -- npga-view bench: the CLI's handlers unwind (engine closed by its `with`) ---------------------------------
+@pytest.mark.slow
 def test_bench_ended_by_sigterm_stops_its_worker(avatar_file, tmp_path):
     cmd = [sys.executable, "-m", "npga_view.cli", "bench", str(avatar_file), "--gaussians", "--no-render",
            "--threads", "1", "--repeat", "1", "--moves", "2", "--live-seconds", "600", "--bake-frames", "2"]
@@ -226,6 +228,7 @@ def display():
     yield from xvfb_display()
 
 
+@pytest.mark.slow
 @pytest.mark.gui
 @pytest.mark.parametrize("sig", [signal.SIGTERM, signal.SIGINT, signal.SIGHUP, signal.SIGKILL], ids=lambda s: s.name)
 def test_viewer_ended_by_a_signal(sig, avatar_file, tmp_path, display):

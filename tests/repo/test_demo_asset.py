@@ -21,7 +21,7 @@ AVATAR = DEMO / "avatar.npga"
 PARTS = {"face", "head_neck", "mouth_socket", "gums_tongue", "teeth", "sclera_l", "sclera_r", "iris_l", "iris_r"}
 NAMED = {"neutral", "jaw_open", "smile", "blink", "brows_up", "frown", "surprise"}
 
-pytestmark = pytest.mark.skipif(not AVATAR.is_file(), reason="demo avatar not built")
+pytestmark = [pytest.mark.slow, pytest.mark.skipif(not AVATAR.is_file(), reason="demo avatar not built")]
 
 
 @pytest.fixture(scope="module")

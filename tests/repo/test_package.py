@@ -70,6 +70,7 @@ def test_wheel_and_sdist_carry_shaders_and_demo(dist):
         assert {f"{folder}/{f}" for f in _data_files(folder)} <= top
 
 
+@pytest.mark.slow
 def test_installed_wheel_runs_from_another_folder(dist, tmp_path):
     """The wheel's files alone (dependencies from this environment), used from a folder that is not the
     checkout: `info demo` finds the demo inside the install and `render demo` draws it with its shaders."""

@@ -14,6 +14,8 @@ from npga_core.evaluation.metrics import composite_background, score
 from tests.support.captures import SERIALS, capture_cameras, write_capture
 from tests.support.reference_rasterizer import rasterize
 
+pytestmark = pytest.mark.slow  # a module fixture takes over 10 s
+
 BG = (1.0, 1.0, 1.0)
 
 

@@ -219,6 +219,7 @@ def test_the_41_path_in_a_real_gl41_context_matches_the_reference():
     assert len(values) == 3 and all(float(v) >= 40.0 for v in values.values()), values
 
 
+@pytest.mark.slow
 def test_under_mesa_gl41_the_cli_chooses_the_41_path(tmp_path):
     script = textwrap.dedent("""
         from npga_view.rendering.gl import create_headless_context
@@ -267,6 +268,7 @@ print("done", flush=True)
 """
 
 
+@pytest.mark.slow
 @pytest.mark.gui
 def test_window_under_mesa_gl41(tmp_path):
     from tests.support.xvfb import start_xvfb, stop

@@ -166,6 +166,7 @@ MODES = ["features", "feature:2", "latent", "latent:1", "offset", "laplacian", "
          "depth", "points", "ellipsoids", "knn"]
 
 
+@pytest.mark.slow
 def test_render_modes_write_pictures_with_a_legend(small_npga, tmp_path, capsys) -> None:
     cv2 = pytest.importorskip("cv2")
     from npga_view.cli.main import main

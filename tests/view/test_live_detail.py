@@ -90,6 +90,7 @@ def test_reset_drops_what_was_merged_for_the_old_avatar(lod, avatar):
     assert lod.request(1) is None and not lod.pending(1)  # (the cloud shown was forgotten too)
 
 
+@pytest.mark.slow
 def test_live_images_come_from_the_merged_cloud_and_the_exact_one_from_all(lod, full, avatar):
     full.use_points = True
     # interactive_ms: as slow as llvmpipe (live images of the full cloud stay below full resolution)
@@ -172,6 +173,7 @@ def test_scheduler_waits_a_moment_for_a_merge_on_its_way(full, avatar):
     assert sched.shown_version == 3 and sched.scale == 1.0
 
 
+@pytest.mark.slow
 def test_no_merged_cloud_where_a_full_image_fits_in_the_budget(lod, full, avatar):
     """On a GPU a full-resolution image of every Gaussian fits in the frame budget: the merged cloud is never
     asked for."""

@@ -101,6 +101,7 @@ def test_the_state_decides_what_is_shown(avatar, camera, renderer, refiner):
     assert refiner.shows(state.use_cnn, state.latent_view, state.mode) is None  # other passes are not refined
 
 
+@pytest.mark.slow
 def test_avatars_without_cnn_or_latent_are_left_alone(ctx, camera, renderer):
     from npga_view.rendering.refinement import Refiner
 
@@ -171,6 +172,7 @@ def test_the_worker_thread_gives_the_same_image(avatar, camera, renderer, refine
     assert refiner.pending_key() is None and refiner.result("k2") is None
 
 
+@pytest.mark.slow
 def test_the_cpu_cnn_in_bands_equals_the_whole_image_and_stops_when_cancelled():
     """The window runs the CNN in bands of rows with the receptive radius as context (so a refinement of a view
     the person has left stops early): the bands give the whole image's output, and a cancel stops them."""

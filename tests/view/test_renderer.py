@@ -106,6 +106,7 @@ def test_synthetic_avatar(renderer):
         check_scene(renderer, g, frame_points(g.means, W, H, direction=direction), background=(1.0, 1.0, 1.0))
 
 
+@pytest.mark.slow
 def test_demo_avatar(make_renderer):
     from npga_core.files.loading import DEMO_AVATAR, load_avatar
 

@@ -73,6 +73,7 @@ def _watch(url: str, profile: Path, drive) -> tuple[dict, dict, dict]:
     return closed, again, opened
 
 
+@pytest.mark.slow
 def test_web_plays_a_take(web_zip: Path, tmp_path: Path) -> None:
     """A take at 30 fps: 2 s with the jaw closed, 2 s open, looped; the page draws the frames of both halves (the
     weights it reports having drawn are the take's), and the open jaw changes the picture where the same closed
@@ -98,6 +99,7 @@ def _free_udp_port() -> int:
         return int(s.getsockname()[1])
 
 
+@pytest.mark.slow
 def test_web_follows_live_link(web_zip: Path, tmp_path: Path) -> None:
     """Live Link Face packets (60/s) sent to --live-link PORT drive the page: jawOpen 0 then 1 (after the
     receiver's smoothing) change the picture."""

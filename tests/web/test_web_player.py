@@ -33,6 +33,7 @@ def render(zip_path: Path, weights: dict[str, float], shot: dict, out: Path) -> 
     return iio.imread(out)[..., :3]
 
 
+@pytest.mark.slow
 def test_page_plays_an_exported_zip_as_npga_view_renders_it(tmp_path: Path) -> None:
     """A LAM-layout avatar exported by `export --format lam-zip`, played by LAM's player at weights with a rescaled
     channel (jawOpen x1.2 in the player) and one beyond 1: the frame matches npga-view's render of the same zip at

@@ -104,6 +104,7 @@ def _image_region(app) -> np.ndarray:
     return shot[fh - (y + h): fh - y, x: x + w]
 
 
+@pytest.mark.slow
 def test_compare_with_a_capture_wipe_blend_difference_and_stepping(window, capture, tmp_path):
     app, _ = window
     # with the codes of its frames: each frame is posed as captured, whatever the window's sliders say

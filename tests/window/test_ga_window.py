@@ -92,6 +92,7 @@ def test_window_opens_a_ga_folder_with_a_flame_model(window, ga):
     assert open_action(str(folder)) == A.OpenAvatar(str(folder))  # a dropped or listed folder opens as an avatar
 
 
+@pytest.mark.slow
 def test_view_command_with_flame_model(display, ga, tmp_path):
     root, folder, pkl = ga
     out = tmp_path / "shot.png"

@@ -32,6 +32,7 @@ def window(display, tmp_path_factory):
     mp.undo()
 
 
+@pytest.mark.slow
 def test_window_on_an_imported_gha_checkpoint(window):
     app, root = window
     folder = write_gha_folder(root / "ckpt", n=2500, seed=5, **SMALL)

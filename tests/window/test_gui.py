@@ -67,6 +67,7 @@ def test_every_action_type_has_a_handler_and_keys_send_actions(app, avatar_path)
     assert not app.edits.session.hidden.any()
 
 
+@pytest.mark.slow
 def test_keyframes_play_from_the_panel_action(app, avatar_path):
     """`PlayKeyframes(True)` plays a timeline with keys: the playhead advances and the camera follows the keys
     (it never played before #26: `not timeline.is_empty` tested a bound method, always true)."""
@@ -209,6 +210,7 @@ def test_session_round_trip(app, avatar_path, tmp_path):
     assert app.state.camera.yaw == pytest.approx(30)
 
 
+@pytest.mark.slow
 def test_cli_screenshot_and_quit(display, avatar_path, tmp_path):
     out = tmp_path / "shot.png"
     env = dict(os.environ, DISPLAY=display, XDG_CONFIG_HOME=str(tmp_path))
@@ -231,6 +233,7 @@ def test_cli_bad_avatar_exits_2(display, tmp_path):
     assert r.returncode == 2 and "Traceback" not in r.stderr and str(bad) in r.stderr
 
 
+@pytest.mark.slow
 def test_drop_files_and_rig_cameras(app, avatar_path, tmp_path):
     import json
 
@@ -303,6 +306,7 @@ def _key(app, key, ctrl=False):
     app.step()
 
 
+@pytest.mark.slow
 def test_ctrl_drag_selects_delete_and_undo(app, avatar_path):
     from imgui_bundle import imgui
 
@@ -342,6 +346,7 @@ def test_ctrl_drag_selects_delete_and_undo(app, avatar_path):
     assert app.edits.session.history.names()[0][-1].lower().startswith(("select", "rect"))
 
 
+@pytest.mark.slow
 def test_inspect_mode_and_pick_in_the_window(app, avatar_path):
     assert app.open_avatar(avatar_path)
     settle(app)
@@ -554,6 +559,7 @@ def test_orbit_draws_live_images_from_the_merged_cloud_and_the_exact_one_from_al
     assert app.draws.shown_renderer is app.renderer
 
 
+@pytest.mark.slow
 def test_merged_cloud_can_be_switched_off_in_the_view_panel(app, avatar_path):
     """The View panel's "Merged cloud while moving": off, an orbit's live images come from every Gaussian."""
     assert app.open_avatar(avatar_path)
