@@ -1,14 +1,22 @@
 # Two commands do everything:  make view  (install + open the viewer on the demo)  and  make test.
+# The quick loop:  make test-fast  (every test but the slow and the window ones: under 3 min on 2 cores).
 VENV ?= .venv
 STAMP := $(VENV)/.installed
 
-.PHONY: view test install lint typecheck bench clean wheel check-wheel
+.PHONY: view test test-fast test-gui install lint typecheck bench clean wheel check-wheel
 
 view: $(STAMP)
 	$(VENV)/bin/npga-view $(ARGS)
 
 test: $(STAMP)
 	$(VENV)/bin/python -m pytest $(PYTEST_ARGS)
+
+# markers in pyproject.toml: slow (over ~10 s each), gui (the real window under Xvfb)
+test-fast: $(STAMP)
+	$(VENV)/bin/python -m pytest -q -m "not slow and not gui" $(PYTEST_ARGS)
+
+test-gui: $(STAMP)
+	$(VENV)/bin/python -m pytest -q -m gui $(PYTEST_ARGS)
 
 install: $(STAMP)
 

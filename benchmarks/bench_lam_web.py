@@ -4,10 +4,10 @@
 
 AVATAR.zip is what `npga-view export SOURCE --format lam-zip --out AVATAR.zip` wrote (its AVATAR.fidelity.json
 gives the translation into LAM's frame). For each expression (neutral, jaw open, smile, blink with brows up) the
-page npga_view/web/ plays the zip in headless chromium (tests/web_player.py: the player from npm, SwiftShader
-WebGL) from a frontal camera 0.62 m away, and the frame is compared, over the pixels either image covers, with
-`npga-view render` of the zip (the two renderers), of SOURCE without its CNN (what the export loses plus the
-renderers) and with it. Needs chromium and npm (skips with a message, exit 0, without them).
+page npga_view/web/ plays the zip in headless chromium (tests/support/web_player.py: the player from npm,
+SwiftShader WebGL) from a frontal camera 0.62 m away, and the frame is compared, over the pixels either image
+covers, with `npga-view render` of the zip (the two renderers), of SOURCE without its CNN (what the export loses
+plus the renderers) and with it. Needs chromium and npm (skips with a message, exit 0, without them).
 """
 
 from __future__ import annotations
@@ -54,8 +54,7 @@ def main() -> int:
     import _pytest.outcomes
     import imageio.v3 as iio
 
-    from tests.test_web_player import masked_psnr
-    from tests.web_player import opencv_camera, shoot
+    from tests.support.web_player import masked_psnr, opencv_camera, shoot
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("zip", type=Path)

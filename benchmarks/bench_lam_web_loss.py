@@ -95,7 +95,7 @@ def main() -> int:
     from npga_core.posing import lam_fit
     from npga_view.rendering.factory import create_renderer
     from npga_view.rendering.gl import create_headless_context
-    from tests.test_web_player import masked_psnr
+    from tests.support.web_player import masked_psnr
 
     p = argparse.ArgumentParser(description=__doc__.split("\n\n")[0])
     p.add_argument("avatar", nargs="?", default="demo")

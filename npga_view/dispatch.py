@@ -7,7 +7,7 @@ A controller fills a `Handlers` table with typed registrations, as viser registe
 
 `register(cls: type[T], handler: Callable[[T], None])` lets mypy check the handler against the action it
 runs, so a handler reading a misspelled field, or registered for the wrong action type, fails `make typecheck`
-(tests/test_typed_handlers.py). The app `include`s each controller's table in its `Dispatcher`.
+(tests/repo/test_typed_handlers.py). The app `include`s each controller's table in its `Dispatcher`.
 
 An action type nobody handles, a queued object that is not an action, or a field of the wrong type is an
 `ActionError`: raised in tests (``NPGA_VIEW_STRICT_ACTIONS=1``, set by tests/conftest.py), logged and shown in

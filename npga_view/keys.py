@@ -2,7 +2,7 @@
 
 `KEYS` is the only place a key is bound. `bindings_for(pressed, held)` picks, for the keys pressed this frame,
 the binding whose modifiers are all held, Ctrl matching exactly, the most specific first (so Ctrl+Shift+Z
-is Redo, not Undo). `readme_table()` renders the table as the README's "Keys" section (tests/test_actions.py
+is Redo, not Undo). `readme_table()` renders the table as the README's "Keys" section (tests/view/test_actions.py
 checks the README carries exactly this text). Key names are imgui's (`imgui.Key.<name>`).
 """
 

@@ -41,7 +41,7 @@ class HeadRenderer:
         self.jaw = head.expression_index("jawOpen")
         self._cache: tuple | None = None
 
-    def _posed(self, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, torch.Tensor]:
+    def posed_mesh(self, weights: np.ndarray) -> tuple[np.ndarray, np.ndarray, torch.Tensor]:
         """Posed vertices, their normals and the vertex deformation gradients (cached for the last weights)."""
         key = np.asarray(weights, np.float32).tobytes()
         if self._cache is None or self._cache[0] != key:
@@ -53,17 +53,17 @@ class HeadRenderer:
     def render(self, weights: np.ndarray, camera: Camera) -> tuple[np.ndarray, np.ndarray]:
         """(premultiplied colour (H, W, 3), coverage (H, W)) at blendshape weights (E,), both float32."""
         s = self.supersample
-        verts, normals, fv = self._posed(weights)
+        verts, normals, fv = self.posed_mesh(weights)
         frags = rasterize_mesh(verts, self.faces, supersampled(camera, s))
         cov = frags.covered
         colour = np.zeros(frags.triangle.shape + (3,))
         if cov.any():
-            colour[cov] = self._shade(verts, normals, fv, self.tri[frags.triangle[cov]], frags.bary[cov], weights,
+            colour[cov] = self.shade(verts, normals, fv, self.tri[frags.triangle[cov]], frags.bary[cov], weights,
                                       camera)
         rgb = box_filter(colour, s).astype(np.float32)
         return rgb, box_filter(cov.astype(np.float64), s).astype(np.float32)
 
-    def _shade(self, verts: np.ndarray, normals: np.ndarray, fv: torch.Tensor, tri: np.ndarray, bary: np.ndarray,
+    def shade(self, verts: np.ndarray, normals: np.ndarray, fv: torch.Tensor, tri: np.ndarray, bary: np.ndarray,
                weights: np.ndarray, camera: Camera) -> np.ndarray:
         head = self.head
         faces = head.faces

@@ -2,7 +2,7 @@
 
 Facts about their mesh, written down from their description (ShenhanQian/GaussianAvatars,
 `flame_model/flame.py`, `FlameHead.add_teeth` and `FlameMask.create_custom_mask`) so that a Gaussian's `binding`
-names the same triangle; tests/test_gaussian_avatars_reference.py checks them against that file when a copy is
+names the same triangle; tests/files/test_gaussian_avatars_reference.py checks them against that file when a copy is
 at hand. The teeth are 8 rows of 15 vertices placed from the template's outer lip ring (ring point i of the upper
 and lower lip): upper root, lower root, upper edge, lower edge, upper root back, upper edge back, lower root
 back, lower edge back. Upper rows follow the neck joint, lower rows the jaw; their shape directions are the

@@ -13,7 +13,7 @@ canonical space, column vectors); the viewer, `render` and `export` use only the
 - GaussianAvatars `flame_param.npz`: FLAME applies `rotation` (axis-angle) about its root joint J0, which a
   non-FLAME avatar does not have; applied here about the origin: x_world = R x + t.
 
-The research behind these (tracker repositories, files, lines) is cited in tests/test_tracker_pose.py.
+The research behind these (tracker repositories, files, lines) is cited in tests/files/test_tracker_pose.py.
 """
 
 from __future__ import annotations

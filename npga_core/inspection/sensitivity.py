@@ -90,7 +90,7 @@ def position_jvp(avatar: Avatar, code: np.ndarray, direction: np.ndarray) -> np.
         raise ValueError("this avatar has no dynamics")
     z = torch.from_numpy(avatar.check_code(code))
     v = torch.from_numpy(np.asarray(direction, np.float32).reshape(-1))
-    t = avatar._tensors()
+    t = avatar.canonical_tensors()
     total = torch.zeros(t["means"].shape[0], 3)
     for key, net in avatar.dynamics.networks().items():
         o, cols = 0, None
@@ -100,9 +100,9 @@ def position_jvp(avatar: Avatar, code: np.ndarray, direction: np.ndarray) -> np.
             o += width
         if cols is None:
             continue
-        first = avatar._first_layer.get(key)  # the avatar's cache of `precompute`, shared with `Avatar.offsets`
+        first = avatar.first_layer_cache.get(key)  # the avatar's cache of `precompute`, shared with `Avatar.offsets`
         if first is None:
-            first = avatar._first_layer[key] = net.precompute(t["means"], t["features"])
+            first = avatar.first_layer_cache[key] = net.precompute(t["means"], t["features"])
         total += mlp_jvp(net, first, z, v, cols, (t["means"], t["features"]))
     rig = avatar.dynamics.rig
     if rig is not None and rig.skin is not None:  # a skinned mesh: central difference of the centres

@@ -97,6 +97,12 @@ class Avatar:
             raise ValueError("expression code has NaN or Inf values")
         return z
 
+    @property
+    def first_layer_cache(self) -> dict[str, torch.Tensor]:
+        """Each network's first layer on the canonical cloud (`precompute`), shared by `offsets`, FastPoser and
+        sensitivity; emptied by `invalidate_caches`."""
+        return self._first_layer
+
     def invalidate_caches(self) -> None:
         """Drop cached per-Gaussian terms (call after editing the cloud or the networks); bumps `version`."""
         self._first_layer.clear()
@@ -131,7 +137,8 @@ class Avatar:
             self._content_key = h.hexdigest()
         return self._content_key
 
-    def _tensors(self) -> dict:
+    def canonical_tensors(self) -> dict:
+        """The canonical cloud as torch tensors (cached until `invalidate_caches`), as posing reads it."""
         if self._canonical is None:
             self._canonical = cloud_tensors(self.cloud)
         return self._canonical
@@ -146,7 +153,7 @@ class Avatar:
             raise ValueError("this avatar has no dynamics")
         zfull = self.check_code(z)
         zt = torch.from_numpy(zfull[: self.dynamics.network_dim])
-        t = self._tensors()
+        t = self.canonical_tensors()
         blend = blend_tensors(t, self.cloud.blend_names)
         by = {}
         for key, net in self.dynamics.networks().items():
@@ -172,7 +179,7 @@ class Avatar:
         """Offsets by the plain forward passes (slow; the definition the fast path is tested against)."""
         if self.dynamics is None:
             raise ValueError("this avatar has no dynamics")
-        t = self._tensors()
+        t = self.canonical_tensors()
         return self.dynamics.offsets(t["means"], t["features"], torch.from_numpy(self.check_code(z)),
                                      blend_tensors(t, self.cloud.blend_names))
 
@@ -186,7 +193,7 @@ class Avatar:
         else:
             z = self.neutral_code() if z is None else z
             off = self.offsets_reference(z) if reference else self.offsets(z, timings=timings)
-            posed = to_posed_gaussians(apply_offsets(self._tensors(), off, self.dynamics.rules))
+            posed = to_posed_gaussians(apply_offsets(self.canonical_tensors(), off, self.dynamics.rules))
             rig = self.dynamics.rig
             if rig is not None and not rig.identity_transform:
                 posed = rig_transformed(posed, rig)

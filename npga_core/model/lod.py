@@ -180,7 +180,7 @@ class LevelOfDetail:
         sorted_labels = labels[order]
         starts = np.flatnonzero(np.r_[True, sorted_labels[1:] != sorted_labels[:-1]])
         self.clusters = int(starts.shape[0])  # Gaussians of a merged cloud
-        self._labels = labels
+        self.labels = labels  #: each Gaussian's cluster
         self._first = order[starts]  # one member of each cluster: the reference its offsets are taken from
         indptr = np.r_[starts, self.count].astype(np.int64)
         #: (clusters x N) sums over each cluster's members
@@ -189,9 +189,9 @@ class LevelOfDetail:
 
     def _weights(self, w: np.ndarray) -> sparse.csr_matrix:
         """(clusters x N) matrix averaging each cluster's members with weights `w` (normalised per cluster)."""
-        wsum = np.bincount(self._labels, weights=w, minlength=self.clusters)
+        wsum = np.bincount(self.labels, weights=w, minlength=self.clusters)
         mean_of = self._sum_of.copy()
-        mean_of.data = (w / wsum[self._labels])[mean_of.indices]
+        mean_of.data = (w / wsum[self.labels])[mean_of.indices]
         return mean_of
 
     def merge(self, posed: PosedGaussians) -> PosedGaussians:
@@ -208,7 +208,7 @@ class LevelOfDetail:
         mean_of = self._weights(opac * area + 1e-30)
         means = np.asarray(posed.means, dtype=np.float64)
         ref = means[self._first]  # offsets from one member keep the second moments free of cancellation
-        d = means - ref[self._labels]
+        d = means - ref[self.labels]
         dd = np.stack([d[:, 0] * d[:, 0], d[:, 1] * d[:, 1], d[:, 2] * d[:, 2], d[:, 0] * d[:, 1],
                        d[:, 0] * d[:, 2], d[:, 1] * d[:, 2]], axis=1)
         own = covariances(posed.quats, scales)[[0, 3, 5, 1, 2, 4]].T  # as xx, yy, zz, xy, xz, yz

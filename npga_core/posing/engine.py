@@ -33,6 +33,7 @@ import weakref
 from collections.abc import Callable
 from dataclasses import dataclass
 from multiprocessing import shared_memory
+from multiprocessing.process import BaseProcess
 from typing import Any
 
 import numpy as np
@@ -231,6 +232,11 @@ class PoseEngine:
     @property
     def alive(self) -> bool:
         return self._proc.is_alive()
+
+    @property
+    def process(self) -> BaseProcess:
+        """The worker process; it outlives `close` as an object, so its end can be checked."""
+        return self._proc
 
     @property
     def pid(self) -> int | None:

@@ -110,7 +110,7 @@ class FastPoser:
         self.rotation_op = dynamics.rotation_op
         if self.device.type == "cpu":
             self.nets = nets
-            self.canonical = avatar._tensors()
+            self.canonical = avatar.canonical_tensors()
         else:
             self.nets = {k: copy.deepcopy(n).to(self.device).eval() for k, n in nets.items()}
             self.canonical = {k: None if v is None else v.to(self.device)
@@ -262,7 +262,7 @@ class FastPoser:
             return None
         c, rows = self.canonical, self.rows
         out = {}
-        cache = self.avatar._first_layer  # share Avatar's cache: one copy of N x hidden per network
+        cache = self.avatar.first_layer_cache  # share Avatar's cache: one copy of N x hidden per network
         for key, net in self.nets.items():
             a, b = rows.spans.get(key, (0, self.n))
             if self.device.type != "cpu":

@@ -4,7 +4,7 @@ CPUs with AMX (amx_bf16) or AVX-512 BF16 multiply bfloat16 matrices several time
 oneDNN (measured on this project's Xeon: 3.5x for a plain 80k x 256 x 256 product, 7-10x for one lane's packed
 linear); elsewhere bfloat16 is emulated and far slower. `"auto"` takes bfloat16 only where it is native AND the
 avatar's networks pass a fidelity check against float32 (`FastPoser` runs it on a sample of rows; the images
-are then checked by tests/test_precision.py and the bench).
+are then checked by tests/core/test_precision.py and the bench).
 """
 
 from __future__ import annotations

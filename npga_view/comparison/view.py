@@ -281,6 +281,11 @@ class CompareView:
 
     # --- on screen ------------------------------------------------------------------------------------
     @property
+    def prepared(self) -> Prepared | None:
+        """The last job's inputs as the worker made them (the captured view, each avatar's pose), once taken."""
+        return self._prepared
+
+    @property
     def has_image(self) -> bool:
         return self._composed_key is not None and self._presenter is not None
 

@@ -4,7 +4,7 @@ What the frame is (`FrameState`): IDLE (the image on screen is what is wanted: n
 an image at the live scale: the view is changing), REFINING (start the full-resolution image of a view that
 has settled), WAITING_FOR_MERGE (the merged cloud of this pose is nearly there: cheaper than a live image of
 every Gaussian, so wait a little). npga_view/rendering/scheduler.py gathers the inputs (timings, the merged
-cloud's state) and carries the plan out; tests/test_draw_plan.py checks the decisions table by table.
+cloud's state) and carries the plan out; tests/view/test_draw_plan.py checks the decisions table by table.
 """
 
 from __future__ import annotations

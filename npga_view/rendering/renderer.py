@@ -24,7 +24,7 @@ Difference to 3DGS: its front-to-back loop stops a pixel at the first Gaussian t
 transmittance below 1e-4 and skips that Gaussian and all behind it; blending cannot stop, so here they are
 composited. The difference per pixel is at most T_stop * max|feature - background| with
 T_stop < 1e-4 / (1 - alpha) <= 1e-2, i.e. up to 1 % where a pixel saturates with alpha-0.99 splats, and far
-less otherwise (the PSNR tests against tests/reference_rasterizer.py include it).
+less otherwise (the PSNR tests against tests/support/reference_rasterizer.py include it).
 Pixels of 3DGS outside a Gaussian's 16x16-tile bounding rectangle also see no contribution there, while here
 every pixel with alpha >= 1/255 does; this touches only alphas within [1/255, ~1/90] at the 3-sigma edge.
 

@@ -1,0 +1,90 @@
+"""The pose worker process: results equal the in-process pose; newest request wins; errors reported."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from npga_core.files.checkpoint import read_avatar
+from npga_core.posing.engine import PoseEngine
+
+
+def _engine(path):
+    a = read_avatar(path)
+    return a, PoseEngine(str(path), len(a.cloud), a.cloud.sh.shape[1], a.cloud.latent_dim, threads=1)
+
+
+@pytest.mark.slow
+def test_worker_result_equals_in_process_pose(small_npga):
+    a, eng = _engine(small_npga)
+    with eng:
+        z = a.expression.sample(np.random.default_rng(0))
+        eng.request(z)
+        r = eng.wait()
+        assert r is not None and np.array_equal(r.code, z)
+        ref = a.pose(z)
+        for name in ("means", "quats", "scales", "opacities", "sh", "latent"):
+            np.testing.assert_allclose(getattr(r.posed, name), getattr(ref, name), rtol=1e-5, atol=1e-7)
+        assert {"F", "G", "pose_total"} <= set(r.timings)
+        r.release()
+
+
+@pytest.mark.slow
+def test_newest_request_wins(small_npga):
+    a, eng = _engine(small_npga)
+    with eng:
+        rng = np.random.default_rng(1)
+        codes = [a.expression.sample(rng) for _ in range(20)]
+        ids = [eng.request(z) for z in codes]
+        r = eng.wait()
+        assert r.request_id == ids[-1] and np.array_equal(r.code, codes[-1])
+        r.release()
+
+
+@pytest.mark.slow
+def test_wrong_dimension_reported_not_fatal(small_npga):
+    a, eng = _engine(small_npga)
+    with eng:
+        eng.request(np.zeros(7, np.float32))
+        assert eng.wait(timeout=30) is None and "7 dims" in eng.last_error
+        eng.request(a.neutral_code())
+        r = eng.wait()
+        assert r is not None and eng.alive
+        r.release()
+
+
+def _shm_exists(name: str) -> bool:
+    from multiprocessing import shared_memory
+
+    try:
+        shared_memory.SharedMemory(name=name).close()
+    except FileNotFoundError:
+        return False
+    return True
+
+
+@pytest.mark.slow
+def test_close_twice_and_dropping_an_engine_stop_the_worker(small_npga):
+    """close() is idempotent; an engine dropped without close() still stops its worker and unlinks its slots
+    (weakref.finalize, also run at interpreter exit)."""
+    import gc
+    import time
+
+    a, eng = _engine(small_npga)
+    eng.request(a.neutral_code())
+    eng.wait().release()
+    names, proc = eng.shm_names, eng.process
+    eng.close()
+    eng.close()
+    assert not proc.is_alive() and not any(_shm_exists(n) for n in names)
+
+    a, eng = _engine(small_npga)
+    eng.request(a.neutral_code())
+    eng.wait().release()
+    names, proc = eng.shm_names, eng.process
+    del eng
+    gc.collect()
+    end = time.monotonic() + 60  # a bound on waiting, not a speed
+    while proc.is_alive() and time.monotonic() < end:
+        time.sleep(0.05)
+    assert not proc.is_alive() and not any(_shm_exists(n) for n in names)

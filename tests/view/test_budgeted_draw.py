@@ -1,0 +1,232 @@
+"""Frame-budgeted drawing (#14): slices and points give the pixels of one quad draw; the scheduler's images.
+
+Headless (EGL / OSMesa llvmpipe). The renderer's images are checked against the independent reference
+rasterizer in tests/view/test_renderer.py; here the new paths are checked against the established quad path.
+"""
+
+from __future__ import annotations
+
+import math
+
+import numpy as np
+import pytest
+
+from npga_core.camera.cameras import frame_points
+from npga_core.model.gaussians import PosedGaussians
+from npga_core.model.synthetic import make_synthetic_avatar
+from npga_view.rendering.scheduler import DrawScheduler, scaled_camera
+from tests.support.render import accumulated
+
+
+@pytest.fixture(scope="module")
+def posed() -> PosedGaussians:
+    return make_synthetic_avatar(6000, seed=11).pose()
+
+
+@pytest.fixture(scope="module")
+def renderer(make_renderer, posed):
+    r = make_renderer(64, 64)
+    r.set_gaussians(posed)
+    yield r
+    r.release()
+
+
+def test_points_path_equals_quads(renderer, posed):
+    cam = frame_points(posed.means, 160, 140)
+    renderer.use_points = False
+    quads = renderer.render(cam)
+    assert renderer.last_timings["points"] == 0.0
+    renderer.use_points = True
+    points = renderer.render(cam)
+    assert renderer.last_timings["points"] == 1.0
+    assert quads.max() > 0.1
+    np.testing.assert_array_equal(points, quads)
+
+
+def test_points_of_turned_elongated_splats_equal_quads(make_renderer, gl_path):
+    """A GL point holds the bounding box of a splat's ellipse, not of its quad (splat_common.glsl point_side):
+    thin opaque splats turned 0-90 degrees in the image, drawn as points, keep every pixel of the quad path, on
+    both GL paths; the side is that of the ellipse's box (at 45 degrees 15 % smaller than the quad's box here)."""
+    from npga_core.camera.cameras import look_at
+
+    angles = np.radians(np.arange(0.0, 91.0, 15.0))
+    n = len(angles)
+    means = np.stack([np.linspace(-0.3, 0.3, n), np.zeros(n), np.zeros(n)], 1).astype(np.float32)
+    quats = np.stack([np.cos(angles / 2), np.zeros(n), np.zeros(n), np.sin(angles / 2)], 1).astype(np.float32)  # z
+    scales = np.tile(np.float32([0.03, 0.004, 0.004]), (n, 1))
+    sh = np.zeros((n, 1, 3), np.float32)
+    sh[:, 0] = 1.0
+    posed = PosedGaussians(means, quats, scales, np.full(n, 0.98, np.float32), sh)
+    cam = look_at((0.0, 0.0, 1.0), (0.0, 0.0, 0.0), (0.0, 1.0, 0.0), 60.0, 320, 120)
+    r = make_renderer(64, 64)
+    try:
+        r.set_gaussians(posed)
+        r.use_points = False
+        quads = r.render(cam)
+        r.use_points = True
+        points = r.render(cam)
+        assert r.last_timings["points"] == 1.0 and quads.max() > 0.5
+        np.testing.assert_array_equal(points, quads)
+        if gl_path == "43":  # the 4.3 path's splat buffer: the point side against the quad's box
+            sp = np.frombuffer(r._buffers["splats"].read(size=n * 64), np.float32).reshape(n, 16)
+            quad_box = 2 * np.maximum(np.abs(sp[:, 4]) + np.abs(sp[:, 6]), np.abs(sp[:, 5]) + np.abs(sp[:, 7])) + 1
+            turned = int(np.argmin(np.abs(angles - np.pi / 4)))
+            assert np.all(sp[:, 15] <= quad_box + 1e-3) and sp[turned, 15] < 0.9 * quad_box[turned]
+    finally:
+        r.release()
+
+
+def test_oversize_splats_fall_back_to_quads(make_renderer, posed):
+    """A splat larger than the largest GL point is drawn as a quad: the image still equals the quad path's."""
+    big = PosedGaussians(posed.means.copy(), posed.quats.copy(), posed.scales.copy(), posed.opacities.copy(),
+                         posed.sh.copy())
+    big.scales[0] = 0.5  # half a metre: hundreds of pixels wide
+    big.opacities[0] = 0.5
+    r = make_renderer(64, 64)
+    try:
+        r.set_gaussians(big)
+        cam = frame_points(posed.means, 400, 350)
+        points_allowed = r.render(cam)
+        assert r._oversize >= 1 and r.last_timings["points"] == 0.0
+        r.use_points = False
+        np.testing.assert_array_equal(points_allowed, r.render(cam))
+    finally:
+        r.release()
+
+
+@pytest.mark.parametrize("points", [False, True])
+def test_slices_compose_to_one_draw(renderer, posed, points):
+    renderer.use_points = points
+    cam = frame_points(posed.means, 200, 180, direction="three_quarter_right")
+    renderer.draw(cam)
+    one = accumulated(renderer)
+    renderer.begin_draw(cam)
+    steps = 0
+    while not renderer.continue_draw(0.0):  # the smallest budget: one minimal slice per call
+        steps += 1
+        assert renderer.drawing and 0.0 < renderer.progress < 1.0
+    assert renderer.last_timings["slices"] >= 2 and steps >= 1
+    np.testing.assert_array_equal(accumulated(renderer), one)
+
+
+def test_finished_image_stays_in_front_while_the_next_is_drawn(renderer, posed):
+    renderer.use_points = True
+    front = frame_points(posed.means, 120, 100, direction="front")
+    side = frame_points(posed.means, 120, 100, direction="right")
+    renderer.draw(front)
+    first = accumulated(renderer)
+    renderer.begin_draw(side)
+    assert not renderer.continue_draw(0.0)
+    np.testing.assert_array_equal(accumulated(renderer), first)  # the unfinished side view is not shown
+    renderer.continue_draw(math.inf)
+    assert not np.array_equal(accumulated(renderer), first)
+
+
+def test_another_prepass_drops_the_unfinished_image(renderer, posed):
+    cam = frame_points(posed.means, 150, 130)
+    renderer.begin_draw(cam)
+    renderer.continue_draw(0.0)
+    renderer.pick(frame_points(posed.means, 151, 130), 70, 60)  # a different camera: a new pre-pass
+    assert not renderer.drawing
+
+
+def test_scheduler_reduces_scale_while_live_and_refines_after(renderer, posed):
+    renderer.use_points = True
+    sched = DrawScheduler(renderer, budget_ms=1.0, interactive_ms=1e-3, min_scale=0.25, settle_s=0.0)
+    cam = frame_points(posed.means, 240, 200)
+    t = 0.0
+    # live: images at the reduced scale, several UI frames each
+    frames = 0
+    while sched.images < 3:  # 0.5, then damped steps down to the minimum
+        sched.frame(cam, "rgb", content_version=sched.images, interacting=True, now=t)
+        t += 0.04
+        frames += 1
+        assert frames < 500
+    assert sched.scale == pytest.approx(0.25) and sched.status == "preview"
+    assert renderer.image_size == (60, 50)
+    # input stops: the current view is refined to full resolution, then drawing stops
+    version = sched.shown_version
+    while not sched.settled:
+        sched.frame(cam, "rgb", content_version=version, interacting=False, now=t)
+        t += 0.04
+        frames += 1
+        assert frames < 2000
+    assert sched.scale == 1.0 and sched.status == "exact" and renderer.image_size == (240, 200)
+    refined = accumulated(renderer)
+    assert not sched.frame(cam, "rgb", content_version=version, interacting=False, now=t)  # nothing to draw
+    renderer.draw(cam)
+    np.testing.assert_array_equal(refined, accumulated(renderer))
+
+
+def test_scheduler_labels_a_preview_pose_until_the_exact_one(renderer, posed):
+    sched = DrawScheduler(renderer, budget_ms=math.inf, settle_s=0.0)
+    cam = frame_points(posed.means, 120, 100)
+    for _ in range(5):
+        sched.frame(cam, "rgb", content_version=1, interacting=False, exact_content=False, now=0.0)
+    assert sched.settled and sched.status == "preview"
+    sched.frame(cam, "rgb", content_version=2, interacting=False, exact_content=True, now=1.0)
+    sched.frame(cam, "rgb", content_version=2, interacting=False, exact_content=True, now=1.0)
+    assert sched.status == "exact"
+
+
+def test_unbudgeted_scheduler_draws_each_change_at_once(renderer, posed):
+    """The window benchmark's comparison (npga_view/cli/bench_window.py): drawing as before frame budgets."""
+    from npga_view.cli.bench_window import UnbudgetedScheduler
+
+    sched = UnbudgetedScheduler(renderer)
+    cam = frame_points(posed.means, 130, 110)
+    assert sched.frame(cam, "rgb", 1, interacting=True)
+    assert sched.scale == 1.0 and renderer.image_size == (130, 110)
+    assert not sched.frame(cam, "rgb", 1, interacting=True)
+
+
+def test_scaled_camera_keeps_the_field_of_view(posed):
+    cam = frame_points(posed.means, 400, 300)
+    small = scaled_camera(cam, 0.25)
+    assert (small.width, small.height) == (100, 75)
+    assert small.tan_half_fov_x == pytest.approx(cam.tan_half_fov_x, rel=1e-6)
+    assert small.tan_half_fov_y == pytest.approx(cam.tan_half_fov_y, rel=1e-6)
+
+
+def test_scheduler_draws_a_live_view_once(renderer, posed):
+    """While the view stays live (a preview pose on screen, no camera move), its live image is not drawn again
+    when the adapted live scale moves: redrawing it only took the cores from the exact pose being computed."""
+    renderer.use_points = True
+    sched = DrawScheduler(renderer, budget_ms=math.inf, interactive_ms=1e6, settle_s=0.0)  # the scale grows
+    cam = frame_points(posed.means, 240, 200)
+    sched.frame(cam, "rgb", content_version=1, interacting=True, exact_content=False, now=0.0)
+    assert sched.images == 1 and sched.interactive_scale > sched.scale  # adapted upward after the image
+    for k in range(5):
+        assert not sched.frame(cam, "rgb", content_version=1, interacting=True, exact_content=False, now=0.1 * k)
+    assert sched.images == 1 and sched.status == "preview"
+    # a new pose (the next preview) is drawn; input stopping refines to full resolution
+    sched.frame(cam, "rgb", content_version=2, interacting=True, exact_content=False, now=1.0)
+    assert sched.images == 2
+    sched.frame(cam, "rgb", content_version=2, interacting=False, exact_content=False, now=2.0)
+    assert sched.images == 3 and sched.scale == 1.0
+
+
+def test_first_live_image_after_a_settled_view_gets_the_whole_budget(renderer, posed, monkeypatch):
+    """A change after a settled view (a Live Link packet, a click) is answered with the whole budget in its first
+    frames; the live images after it leave the UI its rate (here the UI is slow, so they get a third of it)."""
+    renderer.use_points = False
+    given: list[float] = []
+    draw = renderer.continue_draw
+    monkeypatch.setattr(renderer, "continue_draw", lambda ms: given.append(ms) or draw(ms))
+    sched = DrawScheduler(renderer, budget_ms=30.0, settle_s=0.0)
+    cam = frame_points(posed.means, 240, 200)
+    while not sched.settled:
+        sched.frame(cam, "rgb", content_version=1, interacting=False, now=0.0)
+    sched.ui_ms = 40.0  # a UI slower than the target rate: live frames would get a third of the budget
+    given.clear()
+    sched.frame(cam, "rgb", content_version=2, interacting=True, now=1.0)
+    assert given and given[0] > 25.0  # (the whole 30 ms less what the frame had spent when it was measured)
+    for _ in range(1000):  # that image finished (drawing continues while frames come)
+        if sched.shown_version == 2:
+            break
+        sched.frame(cam, "rgb", content_version=2, interacting=True, now=1.0)
+    assert sched.shown_version == 2
+    given.clear()
+    sched.ui_ms = 40.0
+    sched.frame(cam, "rgb", content_version=3, interacting=True, now=1.1)  # the stream goes on: a live image
+    assert given and given[0] <= 10.0 + 1e-6
