@@ -39,7 +39,10 @@ class EvaluateError(CommandError):
 def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("avatar", help="a .npga checkpoint, a 3DGS .ply, or 'demo'")
     p.add_argument("--capture", required=True, type=Path, help="NeRSemble sequence folder or GHA preprocessed folder")
-    p.add_argument("--sequence", type=Path, help="expression codes of the capture's frames (default: neutral)")
+    p.add_argument("--sequence", type=Path, help="expression codes of the capture's frames (default: neutral), or "
+                   "an ARKit take (.csv, .json) of them read through the avatar's blendshape basis")
+    p.add_argument("--basis", type=Path, default=None,
+                   help="a blendshape basis .npz (npga-view fit-blendshapes) for the avatar: ARKit takes drive it")
     p.add_argument("--cameras", help="comma-separated camera ids (default: all)")
     p.add_argument("--frames", help="frames: A,B,C-D (default: all)")
     p.add_argument("--no-cnn", action="store_true", help="score the splat image, not the CNN's")
@@ -194,7 +197,7 @@ def _evaluate(args) -> int:
     from npga_core.evaluation.capture import load_capture
     from npga_core.evaluation.metrics import Lpips, lpips_status, score
     from npga_core.evaluation.views import frame_code
-    from npga_core.files.loading import load_avatar, load_sequence
+    from npga_core.files.loading import load_avatar
     from npga_view.cli.evaluate_report import write_report
     from npga_view.cli.render import parse_background
     from npga_view.rendering.factory import create_renderer
@@ -204,9 +207,15 @@ def _evaluate(args) -> int:
     capture = load_capture(args.capture, budget_bytes=args.cache_mb << 20)
     problems = list(capture.problems)
     avatar = load_avatar(args.avatar)
+    if args.basis is not None:
+        from npga_core.files.basis_file import attach_basis
+
+        attach_basis(avatar, args.basis)
     seq = None
     if args.sequence is not None:
-        seq = load_sequence(args.sequence)
+        from npga_view.cli.expr_arg import load_with_notes
+
+        seq = load_with_notes(avatar, args.sequence)  # (a take through the avatar's basis)
         seq.check_dim(avatar.code_dim, args.sequence)
     notes: list[str] = []
     views, frames, mask_kind = _choose_views(args, capture, problems, notes)

@@ -19,6 +19,7 @@ import pytest
 from npga_view.cli.main import main
 from tests.support.captures import FRAMES, SERIALS, capture_cameras, ssim_reference, write_capture
 from tests.support.reference_rasterizer import rasterize
+from tests.support.takes import write_csv
 
 pytestmark = pytest.mark.slow  # a module fixture takes over 10 s
 
@@ -114,3 +115,32 @@ def test_bad_input_is_one_line_exit_2(tmp_path, capsys):
     assert main(["evaluate", "demo", "--capture", str(tmp_path), "--out", str(tmp_path / "r")]) == 2
     err = capsys.readouterr().err.strip().splitlines()
     assert len(err) == 1 and str(tmp_path) in err[0]
+
+
+def test_a_take_through_a_basis_scores_as_its_codes(capture, tmp_path):
+    """`--sequence take.csv` is read through the avatar's basis (the demo's own, or `--basis`): the scores equal
+    those of the codes that basis gives for the take's frames."""
+    from npga_core import load_avatar
+    from npga_core.files.basis_file import attach_basis, bundled_demo_basis, save_basis
+    from npga_core.files.loading import load_sequence_for
+    from npga_core.files.sequences import ExpressionSequence
+    from npga_core.model.blendshapes import BlendshapeBasis
+
+    take = tmp_path / "take.csv"
+    write_csv(take, [(f"00:00:00:{2 * k:02d}.000", {"JawOpen": 0.2 * k, "EyeBlinkLeft": 0.9 - 0.2 * k})
+                     for k in range(5)])
+    demo = bundled_demo_basis()
+    other = BlendshapeBasis(demo.names, 0.5 * demo.matrix, demo.offset, "half the demo's")
+    save_basis(other, tmp_path / "half.npz")
+    for extra, basis in (((), None), (("--basis", str(tmp_path / "half.npz")), tmp_path / "half.npz")):
+        avatar = load_avatar("demo")
+        if basis is not None:
+            attach_basis(avatar, basis)
+        codes = load_sequence_for(avatar, take).codes
+        ExpressionSequence(codes, 30.0, "take codes").save(tmp_path / "codes.npzseq")
+        a, b = tmp_path / f"take{len(extra)}", tmp_path / f"codes{len(extra)}"
+        assert _run(capture, a, "--sequence", str(take), *extra) == 0
+        assert _run(capture, b, "--sequence", str(tmp_path / "codes.npzseq")) == 0
+        ta, tb = _csv(a), _csv(b)
+        assert ta and [r["psnr"] for r in ta] == [r["psnr"] for r in tb]
+    assert _csv(tmp_path / "take0")[0]["psnr"] != _csv(tmp_path / "take2")[0]["psnr"]  # the basis was used
