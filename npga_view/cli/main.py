@@ -98,7 +98,10 @@ def main(argv: list[str] | None = None) -> int:
     except (signals.Terminated, KeyboardInterrupt) as e:
         signum = e.signum if isinstance(e, signals.Terminated) else 2
         print(f"npga-view: {name}: stopped by {signals.name(signum)}", file=sys.stderr)
-        if signals.abandoned():  # a C call (the CNN) still runs on a helper thread: end without shutdown
+        # a C call (the CNN) still running on a helper thread, or torch's own thread pools beside one that just
+        # ended: interpreter shutdown is not safe beside them (once seen: "terminate called without an active
+        # exception", SIGABRT instead of 128 + 15). Every finally block has run by now; end without shutdown.
+        if signals.abandoned() or "torch" in sys.modules:
             import os
 
             sys.stdout.flush()
