@@ -104,7 +104,6 @@ class ViewerApp:
         self._fps_t: list[float] = []
         self.frames = 0
         self.presented = 0  # frames drawn into the window (`_present`: the others were the frame on screen)
-        self._view_key: tuple | None = None
         self._presented_key: tuple | None = None
         self._presented_t = -1e9
         self.profile = FrameProfile()  # wall time per section of the UI frames (stats overlay, bench)
@@ -273,9 +272,9 @@ class ViewerApp:
         before the first pose). Draws at the live scale meanwhile."""
         return self._input_active() or self.live.busy() or self.poses.preview or self.poses.canonical
 
-    def _draw_splats(self) -> Callable[[], None]:
-        """Schedule this frame's splat drawing (`DrawScheduler`), the refinement or the comparison; returns what draws
-        the view into the window (`_present`), and sets `_view_key` to what it shows (None: always drawn)."""
+    def _draw_splats(self) -> tuple[tuple | None, Callable[[], None]]:
+        """Schedule this frame's splat drawing (`DrawScheduler`), the refinement or the comparison; returns what the
+        view shows (None: drawn every frame) and what draws it into the window (`_present`)."""
         cam = self.current_camera()
         info = self.info
         self.lod.enabled = self.state.merged_live and not self.legacy
@@ -301,16 +300,15 @@ class ViewerApp:
         screen, background = self.ctx.screen, self.state.background
         if self.compare.update(self.avatar, self.poses.shown_code, cam, self.draws.budget_ms * 0.5,
                                self.state.report):  # replaces the splats
-            self._view_key = None  # (drawn every frame)
-            return lambda: self.compare.draw(screen, viewport, background)
+            return None, lambda: self.compare.draw(screen, viewport, background)
         if self.refining.update(cam):
-            self._view_key = ("refined", self.refining.key, self.refining.shown, viewport)
-            return lambda: self.refining.draw(screen, viewport)
+            return (("refined", self.refining.key, self.refining.shown, viewport),
+                    lambda: self.refining.draw(screen, viewport))
         bg = background if self.state.mode == "rgb" else (0.0, 0.0, 0.0)
-        self._view_key = ("splats", self.draws.images, self.draws.shown_target, self.draws.scale, bg, viewport)
-        return lambda: self.draws.present(screen, bg, flip_y=True, viewport=viewport)
+        return (("splats", self.draws.images, self.draws.shown_target, self.draws.scale, bg, viewport),
+                lambda: self.draws.present(screen, bg, flip_y=True, viewport=viewport))
 
-    def _present(self, ui_key: int, view: Callable[[], None]) -> bool:
+    def _present(self, view_key: tuple | None, ui_key: int, view: Callable[[], None]) -> bool:
         """Draw the frame (the view, then imgui by the caller) unless it would be the frame on screen again: the
         same view image (splats or refined) and imgui output as the last frame drawn, nothing compared or recorded,
         drawn less than `PRESENT_AT_LEAST_S` ago. On a software GL drawing a frame costs ~10 ms of fill whether
@@ -319,7 +317,7 @@ class ViewerApp:
         window = self.window
         assert window is not None
         now = time.perf_counter()
-        key = None if self._view_key is None else (self._view_key, ui_key, window.framebuffer_size())
+        key = None if view_key is None else (view_key, ui_key, window.framebuffer_size())
         if key is not None and key == self._presented_key and not self.recorder.recording \
                 and now - self._presented_t < PRESENT_AT_LEAST_S:
             return False
@@ -388,7 +386,7 @@ class ViewerApp:
         if self._posed is not None and self.inspection.stale(self.state.inspect, self.current_camera):
             self.show(self._posed)  # the Inspect settings (or, for depth colouring, the camera) changed
         profile.mark("posing")
-        view = self._draw_splats()
+        view_key, view = self._draw_splats()
         profile.mark("splats")
         self._publish_info()
         if self.state.show_stats:
@@ -397,7 +395,7 @@ class ViewerApp:
                 panel.draw(self.state, self.info)
         ui_key = window.finish_ui()
         profile.mark("stats")
-        if self._present(ui_key, view):
+        if self._present(view_key, ui_key, view):
             profile.mark("splats")
             self.recorder.frame()
             window.draw_ui()

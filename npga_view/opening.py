@@ -84,7 +84,7 @@ def avatar_file(state: ViewerState, path: str) -> tuple[str, str]:
         return path, ""
     if not state.flame_model:
         raise AvatarFileError(path, "is a GaussianAvatars avatar, posed by FLAME: give your FLAME model (npga-view "
-                              "view FOLDER --flame-model FLAME_PKL, or 'FLAME model' in the Files panel)")
+                              "view FOLDER --flame-model FLAME_PKL, or the Files panel's FLAME button)")
     out, note = cached_import(path, state.flame_model)
     return str(out), note
 

@@ -26,6 +26,11 @@ SIDE_PANEL = 400  # logical pixels
 DRAW_VERT_BYTES = 20  # ImDrawVert: position (2 floats), uv (2 floats), colour (4 bytes)
 
 
+def _memory(address: int, size: int) -> memoryview:
+    """`size` bytes at `address`, read in place (hashed each frame: no copy)."""
+    return memoryview((ctypes.c_char * size).from_address(address)) if size else memoryview(b"")
+
+
 class Window:
     """One glfw window; `handle` is glfw's window (None once closed), `ctx` its moderngl context."""
 
@@ -123,8 +128,8 @@ class Window:
                                 np.float32).tobytes())
         for cl in data.cmd_lists:
             v, i = cl.vtx_buffer, cl.idx_buffer
-            h = zlib.crc32(ctypes.string_at(v.data_address(), v.size() * DRAW_VERT_BYTES), h)
-            h = zlib.crc32(ctypes.string_at(i.data_address(), i.size() * 2), h)  # (at least 2 bytes an index)
+            h = zlib.crc32(_memory(v.data_address(), v.size() * DRAW_VERT_BYTES), h)
+            h = zlib.crc32(_memory(i.data_address(), i.size() * 2), h)  # (at least 2 bytes an index)
             cmds = [(c.elem_count, c.idx_offset, c.vtx_offset, *c.clip_rect) for c in cl.cmd_buffer]
             h = zlib.crc32(repr(cmds).encode(), h)
         if any(t.status != imgui.ImTextureStatus.ok for t in (data.textures or [])):

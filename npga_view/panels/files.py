@@ -186,7 +186,7 @@ class FilesPanel:
         if imgui.button("Demo"):
             state.actions.append(A.OpenAvatar("demo"))
         imgui.same_line()  # (on the row of the buttons above: the panels below keep their place)
-        if imgui.button("FLAME model"):
+        if imgui.button("FLAME"):
             state.actions.append(A.SetFlameModel(self.path.strip()))
         if imgui.is_item_hovered():
             now = shown(state.flame_model) if state.flame_model else "none"

@@ -9,13 +9,12 @@ second renderer of the same path; once input stops the full-resolution image is 
 Every cloud the window shows is `submit`ted with its content version (kept, not merged yet). The scheduler
 asks for the merged cloud of a version with `request(version)`: it is uploaded if it has been merged, else its
 merge is queued (a newer request replaces one not yet started) for a daemon thread that merges while the UI
-goes on (numpy releases the GIL in the heavy parts). Until it is merged, a newer pose is shown by the last merge
-moved along (`Merge.shifted`: every merged centre and base colour by its members' mean change, ~1 ms), so a live image
-of a new pose (a stream's packet, a slider step) never waits for its merge. `pending(version)` says that one is
-on its way, so the scheduler can wait a moment for it instead of drawing the full cloud (before the first merge),
-and `uploaded_version` which merged pose
-the renderer holds (playback draws the newest one when poses come faster than merges). An orbit needs one
-merge for all its images.
+goes on (numpy releases the GIL in the heavy parts). Until it is merged, a newer pose is shown by the last
+merge moved along (`Merge.shifted`: every merged centre and base colour by its members' mean change, ~1 ms),
+so a live image of a new pose (a stream's packet, a slider step) never waits for its merge. `pending(version)`
+says that one is on its way, so the scheduler can wait a moment for it instead of drawing the full cloud
+(before the first merge), and `uploaded_version` which merged pose the renderer holds (playback draws the
+newest one when poses come faster than merges). An orbit needs one merge for all its images.
 Clouds of fewer than `min_count` Gaussians are drawn in full (a merge would save little), as are inspection
 styles that draw every Gaussian ("points", "ellipsoids") and views with line overlays.
 """

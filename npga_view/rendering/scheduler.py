@@ -243,9 +243,8 @@ class DrawScheduler:
         merged = self._job.renderer is not self.renderer
         # the first response to a change after a settled view (a packet, a click, the start of a drag) comes as soon
         # as the budget allows: one longer UI frame is not seen, a late answer is
-        first = self._job.first and live
-        self._given_ms = max(self.budget_ms, self.frame_budget(live, merged)) if first else \
-            self.frame_budget(live, merged)
+        given = self.frame_budget(live, merged)  # (also sets the live budget `_adapt` sizes images by)
+        self._given_ms = self.budget_ms if self._job.first and live else given
         return self._continue(self._given_ms, frame_start)
 
     def _plan_inputs(self, target: Target, live: bool, exact_content: bool,
