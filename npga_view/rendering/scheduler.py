@@ -240,10 +240,9 @@ class DrawScheduler:
             return False
         if self._job is None:
             return False
-        merged = self._job.renderer is not self.renderer
         # the first response to a change after a settled view (a packet, a click, the start of a drag) comes as soon
         # as the budget allows: one longer UI frame is not seen, a late answer is
-        given = self.frame_budget(live, merged)  # (also sets the live budget `_adapt` sizes images by)
+        given = self.frame_budget(live)  # (also sets the live budget `_adapt` sizes images by)
         self._given_ms = self.budget_ms if self._job.first and live else given
         return self._continue(self._given_ms, frame_start)
 
@@ -290,22 +289,18 @@ class DrawScheduler:
                                                 decision.live, renderer or self.renderer, first), now)
         return True
 
-    def frame_budget(self, live: bool, merged: bool = False) -> float:
+    def frame_budget(self, live: bool) -> float:
         """Milliseconds of drawing per UI frame: while the view changes, what keeps the UI at `target_fps` beside
         the UI's own time and the usual overshoot (the last slice, GL work queued by the window), at most
-        `budget_ms`: for the full cloud's images at least a third of it (no cliff: a threshold flipped a LAM
-        stream between 32 and 20 UI fps as the UI's own time moved by a millisecond); for the merged cloud's the
-        whole budget when less than a quarter is left (the UI cannot reach that rate anyway: images/s matter
-        more then); live images adapt their scale to what they are given (`_adapt`); while
+        `budget_ms`, at least a third of it (no cliff: the whole budget once less than a quarter was left flipped a
+        LAM stream between 32 and 20 UI fps as the UI's own time moved by a millisecond, and held the demo at 17-19
+        UI fps beside two busy processes); live images adapt their scale to what they are given (`_adapt`); while
         nothing changes, a refinement may take as long as the rest of the UI frame (so that it gets at least half
         of the machine), never less than the budget and at most 4 times it."""
         if not live:
             return max(self.budget_ms, min(self.ui_ms, 4 * self.budget_ms))
         left = 1e3 / self.target_fps - self.ui_ms - self.over_ms
-        if merged:  # (when the UI alone is too slow for that rate, the whole budget: images/s matter more then)
-            self.live_budget_ms = min(self.budget_ms, left) if left >= self.budget_ms / 4 else self.budget_ms
-        else:  # the full cloud's images: no cliff between a third of the budget and all of it
-            self.live_budget_ms = min(self.budget_ms, max(left, self.budget_ms / 3))
+        self.live_budget_ms = min(self.budget_ms, max(left, self.budget_ms / 3))
         return self.live_budget_ms
 
     def _start(self, camera: Camera, mode: str, image: _Image, now: float) -> None:
