@@ -76,7 +76,7 @@ class DrawScheduler:
     """See the module docstring. `frame()` once per UI frame; `status` and `scale` describe the shown image."""
 
     def __init__(self, renderer: SplatRenderer, budget_ms: float = 25.0, interactive_ms: float = 120.0,
-                 min_scale: float = 0.2, settle_s: float = 0.3, lod: LiveDetail | None = None,
+                 min_scale: float = 0.2, settle_s: float = 0.15, lod: LiveDetail | None = None,
                  lod_wait_ms: float = 200.0, lod_interactive_ms: float = 40.0):
         self.renderer = renderer
         self.lod = lod
@@ -228,6 +228,8 @@ class DrawScheduler:
             if self._view is not None and self._shown is not None:
                 self._last_change = now
             self._view = (key, mode)
+        if self._live and not interacting:  # a drag or a held slider let go: the view has stopped, no settle time
+            self._last_change = -math.inf
         live = interacting or (now - self._last_change) < self.settle_s
         self._live = interacting  # (not the settle time: a live image is refined once it has passed)
         job = self._job

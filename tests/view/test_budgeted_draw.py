@@ -248,3 +248,19 @@ def test_live_budget_has_no_cliff(renderer):
         assert s.frame_budget(True) == pytest.approx(25.0 / 3)
     s.ui_ms = 200.0  # a refinement (not live) takes up to 4 budgets beside a slow UI
     assert s.frame_budget(False) == pytest.approx(100.0)
+
+
+def test_released_drag_refines_at_once_and_a_programmatic_move_settles_first(renderer, posed):
+    """A drag let go (interacting -> not) has stopped: the next frame starts the full-resolution image. A camera
+    moved without input (a script, the keyboard) is refined only `settle_s` after its last move."""
+    renderer.use_points = True
+    cams = [frame_points(posed.means, 240, 200, direction=d) for d in ("front", "three_quarter_left")]
+    for interacting in (True, False):
+        sched = DrawScheduler(renderer, budget_ms=math.inf, interactive_ms=1e-3, min_scale=0.25, settle_s=10.0)
+        for _ in range(3):  # (the first pixels come from a cheaper image)
+            sched.frame(cams[0], "rgb", content_version=1, interacting=False, now=0.0)
+        assert sched.settled
+        sched.frame(cams[1], "rgb", content_version=1, interacting=interacting, now=1.0)  # moved: a live image
+        assert sched.scale < 1.0
+        sched.frame(cams[1], "rgb", content_version=1, interacting=False, now=1.1)
+        assert sched.settled is interacting  # released: refined at once; moved by a script: within settle_s
