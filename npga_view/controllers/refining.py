@@ -80,6 +80,8 @@ class RefineController:
             self.refiner.cancel()
             self._drop_latent()
             ready = key == self._key  # no new splat image yet: the refined one of the image on screen stays
+        elif self.draws.interacting:  # a change is on its way (a packet's pose, a drag): its image first
+            ready = key == self._key
         else:
             ready = key == self._key or self._compute(key, what, camera, bg)
         if not ready:

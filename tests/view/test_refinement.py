@@ -359,6 +359,34 @@ def test_a_refinement_of_a_view_left_behind_is_cancelled():
     assert calls == ["cancel"] and ctl.info.shown == "splats (refining)"
 
 
+
+def test_a_refinement_waits_while_a_change_is_on_its_way():
+    """RefineController: while the view is settled but the scheduler's last frame was an interaction (a Live Link
+    packet's pose on its way, a drag not yet moved) no refinement work runs in the frame: a slice of the latent pass
+    took ~40 ms of the frame in which a packet's pose arrived. A refined image already made for the view stays."""
+    from types import SimpleNamespace
+
+    from npga_view.controllers.refining import RefineController
+    from npga_view.panels.info import AppInfo
+
+    calls = []
+    refiner = SimpleNamespace(shows=lambda *a: "refined", cancel=lambda: calls.append("cancel"),
+                              present=lambda *a, **k: calls.append("present"), latent_dim=4,
+                              pending_key=lambda: calls.append("compute"))
+    draws = SimpleNamespace(settled=True, interacting=True, shown_target=("view 1",))
+    state = ViewerState()
+    ctl = RefineController(refiner, SimpleNamespace(latent_dim=4), draws, state, AppInfo())
+    assert ctl.present(None, None, (0, 0, 10, 10)) is False
+    assert calls == [] and ctl.info.shown == "splats (refining)"  # nothing computed, nothing cancelled
+    bg = tuple(float(v) for v in state.background)
+    ctl._key = (("view 1",), "refined", state.latent_view, state.latent_channel, bg)
+    assert ctl.present(None, None, (0, 0, 10, 10)) is True and calls == ["present"]  # the refined image stays
+    ctl._key, calls[:] = None, []
+    draws.interacting = False  # the interaction is over: the refinement runs
+    with pytest.raises(AttributeError):  # (this stand-in refiner cannot refine: reaching it is what is checked)
+        ctl.present(None, None, (0, 0, 10, 10))
+    assert calls == ["compute"]
+
 def test_an_avatar_of_0_gaussians_with_latent_features(ctx, camera, renderer):
     """Deleting every Gaussian of an avatar with h (and a CNN) leaves 0 rows: the refiner takes it (its ranges of h
     fall back to defaults) and the refined image of the empty view is the CNN of the background."""
