@@ -48,6 +48,7 @@ SMOOTHING = 0.2  # weight of the newest figure in the smoothed UI and overshoot 
 SCALE_STEP = (0.6, 1.6)  # the live scale changes by at most these factors per image
 FIRST_LIVE_SCALE = 0.5  # the live scales before any image was measured
 FIRST_BUDGETS = 4  # the first live image after a still view may take this many budgets in its first UI frame
+FIRST_SCALE = 0.7  # ... at this times the live scale (LAM p2-1, a packet -> pixels: 0.110-0.120 -> 0.079-0.085 s)
 LIVE_FRAMES = 5  # a live image is sized to take about this many UI frames (about 6 images/s at 30 UI fps)
 
 
@@ -295,7 +296,10 @@ class DrawScheduler:
             renderer = self.lod.renderer
         self._lod_wait = None
         first = decision.live and self._shown is not None and not self._shown.live
-        self._start(camera, target.mode, _Image(decision.draw, decision.scale, decision.exact_content,
+        scale = decision.scale
+        if first and scale < 1.0:  # (smaller still: drawn in one frame where it can; the next live image is sharper)
+            scale = max(self.min_scale, round(scale * FIRST_SCALE, 3))
+        self._start(camera, target.mode, _Image(decision.draw, scale, decision.exact_content,
                                                 decision.live, renderer or self.renderer, first), now)
         return True
 

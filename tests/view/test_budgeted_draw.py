@@ -14,7 +14,7 @@ import pytest
 from npga_core.camera.cameras import frame_points
 from npga_core.model.gaussians import PosedGaussians
 from npga_core.model.synthetic import make_synthetic_avatar
-from npga_view.rendering.scheduler import DrawScheduler, scaled_camera
+from npga_view.rendering.scheduler import FIRST_SCALE, DrawScheduler, scaled_camera
 from tests.support.render import accumulated
 
 
@@ -208,7 +208,8 @@ def test_scheduler_draws_a_live_view_once(renderer, posed):
 
 def test_first_live_image_after_a_settled_view_gets_several_budgets(renderer, posed, monkeypatch):
     """A change after a settled view (a Live Link packet, a click) is answered with FIRST_BUDGETS budgets in its
-    first frame; the live images after it leave the UI its rate (here the UI is slow, so they get a third of it)."""
+    first frame, at FIRST_SCALE times the live scale; the live images after it leave the UI its rate (here the UI
+    is slow, so they get a third of it)."""
     renderer.use_points = False
     given: list[float] = []
     draw = renderer.continue_draw
@@ -219,8 +220,10 @@ def test_first_live_image_after_a_settled_view_gets_several_budgets(renderer, po
         sched.frame(cam, "rgb", content_version=1, interacting=False, now=0.0)
     sched.ui_ms = 40.0  # a UI slower than the target rate: live frames would get a third of the budget
     given.clear()
+    live_scale = sched.interactive_scale
     sched.frame(cam, "rgb", content_version=2, interacting=True, now=1.0)
     assert given and given[0] > 100.0  # (4 x 30 ms less what the frame had spent when it was measured)
+    assert renderer.image_size == (round(240 * live_scale * FIRST_SCALE), round(200 * live_scale * FIRST_SCALE))
     for _ in range(1000):  # that image finished (drawing continues while frames come)
         if sched.shown_version == 2:
             break
