@@ -172,7 +172,7 @@ GOOD_CAMERA = look_at([0, 0, 1], [0, 0, 0]).to_dict()
     ('{"npga_keyframes": 2}', "version 2"),
     ('{"npga_keyframes": 1, "expression": {}}', "must be a list"),
     ('{"npga_keyframes": 1, "expression": [{"time": 0, "code": [1, NaN]}]}', "NaN"),
-    ('{"npga_keyframes": 1, "expression": [{"time": 0, "code": []}]}', "expression[0]: code"),
+    ('{"npga_keyframes": 1, "expression": [{"time": 0, "code": []}]}', "expression[0].code: expected a list of length >= 1"),
     ('{"npga_keyframes": 1, "expression": [{"time": "0", "code": [1]}]}', "expression[0].time"),
     ('{"npga_keyframes": 1, "expression": [{"time": 0, "code": [1], "interp": "cubic"}]}', "interp"),
     ('{"npga_keyframes": 1, "expression": [{"time": 0, "code": [1], "ease_in": 2}]}', "ease_in"),
