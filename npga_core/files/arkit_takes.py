@@ -29,15 +29,18 @@ import math
 import re
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from npga_core.errors import AvatarFileError, shown
 from npga_core.files.atomic import atomic_write
 from npga_core.files.blendshape_names import ANGLE_NAMES, match_names
 from npga_core.files.sequences import ExpressionSequence
-from npga_core.files.untrusted import json_number, parse_json, read_bytes
+from npga_core.files.schema import Name, SchemaError, decode, decode_file
+from npga_core.files.untrusted import parse_json, read_bytes
 from npga_core.model.blendshapes import BlendshapeBasis
 
 #: Largest take file read (a 52-shape take at 60 fps is ~0.6 kB a frame: an hour is ~130 MB; 64 MiB bounds the
@@ -266,152 +269,212 @@ def _text(data: bytes, path: Path) -> str:
 # ------------------------------------------------------------------------------------------ JSON
 
 
-def _number(v: Any, path: Path, what: str) -> float:
-    return json_number(v, path, what, -1e6, 1e6)
+# The layouts, declared (unknown fields are ignored; what a file names is checked against these before use).
+_Weight = Annotated[float, Meta(ge=-1e6, le=1e6)]  # a weight, a time or a timestamp in ms
+_Fps = Annotated[float, Meta(ge=1e-3, le=1000.0)]
+_Row = list[_Weight]
 
 
-def _category_frame(frame: Any, path: Path, i: int) -> tuple[dict[str, float], float | None]:
-    """({name: score}, time in seconds or None) of one MediaPipe frame."""
-    stamp = None
-    if isinstance(frame, dict):
-        for k, scale in (("timestampMs", 1e-3), ("timestamp_ms", 1e-3), ("time", 1.0), ("timestamp", 1.0)):
-            if k in frame:
-                stamp = _number(frame[k], path, f"frame {i} {k}") * scale
-                break
-        if "faceBlendshapes" in frame or "face_blendshapes" in frame:
-            faces = frame.get("faceBlendshapes", frame.get("face_blendshapes"))
-            if not isinstance(faces, list) or not faces:
-                raise AvatarFileError(path, f"frame {i} has no face")
-            frame = faces[0]
-        if isinstance(frame, dict):
-            frame = frame.get("categories")
-    if not isinstance(frame, list):
-        raise AvatarFileError(path, f"frame {i} is no list of blendshape categories")
-    out: dict[str, float] = {}
-    for c in frame:
-        if not isinstance(c, dict):
-            raise AvatarFileError(path, f"frame {i} has a category that is no object")
-        name = c.get("categoryName", c.get("category_name"))
-        if not isinstance(name, str) or not name or len(name) > 128:
-            raise AvatarFileError(path, f"frame {i} has a category without a name")
-        out[name] = _number(c.get("score"), path, f"frame {i} {name} score")
-    return out, stamp
+class _Metadata(msgspec.Struct):
+    fps: _Fps | None = None
 
 
-_Layout = tuple[list[str], np.ndarray, np.ndarray | None, float]
+class _Rates(msgspec.Struct):
+    """The frame rate a JSON take states: LAM's metadata.fps, Audio2Face's exportFps or a plain fps."""
+
+    metadata: _Metadata | None = None
+    exportFps: _Fps | None = None
+    fps: _Fps | None = None
 
 
-def _json_fps(data: Any, path: Path) -> float:
-    """The frame rate a JSON take states (LAM's metadata.fps, Audio2Face's exportFps, a plain fps), else 30."""
-    if isinstance(data, dict):
-        meta = data.get("metadata")
-        if isinstance(meta, dict) and "fps" in meta:
-            return json_number(meta["fps"], path, "metadata.fps", 1e-3, 1000)
-        for key in ("exportFps", "fps"):
-            if key in data:
-                return json_number(data[key], path, key, 1e-3, 1000)
-    return JSON_FPS
+class _LamFrame(msgspec.Struct):
+    weights: _Row
+    time: _Weight | None = None
 
 
-def _names(v: Any, path: Path, key: str) -> list[str]:
-    if not isinstance(v, list) or not all(isinstance(n, str) and 0 < len(n) <= 128 for n in v):
-        raise AvatarFileError(path, f"{key} must be a list of blendshape names")
-    return list(v)
+class _Lam(msgspec.Struct):
+    """LAM Audio2Expression: ``{"names", "metadata": {"fps"}, "frames": [{"weights", "time"}]}``."""
+
+    names: list[Name]
+    frames: list[_LamFrame]
+    head_pose: Any = None
 
 
-def _rows(rows: Any, width: int, path: Path, key: str) -> np.ndarray:
-    """(T, width) numbers of a list of rows of `width` numbers."""
-    if not isinstance(rows, list):
-        raise AvatarFileError(path, f"{key} must be a list of rows")
-    out = []
+class _Audio2Face(msgspec.Struct):
+    """NVIDIA Audio2Face's blendshape export: one row of weights per frame at ``exportFps``."""
+
+    facsNames: list[Name]
+    weightMat: list[_Row]
+
+
+class _Table(msgspec.Struct):
+    """``{"names": [...], "values": [[...]]}``."""
+
+    names: list[Name]
+    values: list[_Row]
+
+
+class _Keyed(msgspec.Struct):
+    """One frame of ``[{"time": t, "blendshapes": {name: value}}]``."""
+
+    blendshapes: dict[Name, _Weight]
+    time: _Weight | None = None
+
+
+class _Category(msgspec.Struct):
+    """One MediaPipe blendshape category (Python's or JavaScript's spelling)."""
+
+    score: _Weight
+    categoryName: Name | None = None
+    category_name: Name | None = None
+
+
+class _Face(msgspec.Struct):
+    categories: list[_Category]
+
+
+class _Result(msgspec.Struct):
+    """A MediaPipe FaceLandmarkerResult (or a frame holding one face's categories), with its time."""
+
+    timestampMs: _Weight | None = None
+    timestamp_ms: _Weight | None = None
+    time: _Weight | None = None
+    timestamp: _Weight | None = None
+    faceBlendshapes: list[_Face | list[_Category]] | None = None
+    face_blendshapes: list[_Face | list[_Category]] | None = None
+    categories: list[_Category] | None = None
+
+
+#: (names, weights (T, B), times or None, fps, what of the file is ignored)
+_Layout = tuple[list[str], np.ndarray, np.ndarray | None, float, str]
+_NO_TAKE = ("is no ARKit take (expected LAM's names/frames, Audio2Face's facsNames/weightMat, names/values, "
+            "MediaPipe category lists, [{time, blendshapes}] or {name: [values]})")
+
+
+def _rows(rows: list[list[float]], width: int, path: Path, key: str) -> np.ndarray:
+    """(T, width) of decoded rows, each of `width` numbers (`key` names row i with a `{}`)."""
     for i, r in enumerate(rows):
-        if not isinstance(r, list) or len(r) != width:
-            raise AvatarFileError(path, f"{key} row {i} must have {width} values")
-        out.append([_number(v, path, f"{key} row {i} value") for v in r])
-    return np.array(out, np.float64).reshape(len(out), width)
+        if len(r) != width:
+            raise AvatarFileError(path, f"{key.format(i)}: expected {width} values (one per name), got {len(r)}")
+    return np.array(rows, np.float64).reshape(len(rows), width)
+
+
+def _times(times: list[float | None]) -> np.ndarray | None:
+    """The frames' times when every frame has one."""
+    return np.array(times, np.float64) if times and None not in times else None
 
 
 def _lam_layout(data: dict, path: Path, fps: float) -> _Layout:
-    """LAM Audio2Expression: ``{"names", "metadata": {"fps"}, "frames": [{"weights", "time"}]}``."""
-    names, frames = _names(data["names"], path, "names"), data["frames"]
-    if not isinstance(frames, list):
-        raise AvatarFileError(path, "frames must be a list")
-    w = _rows([f.get("weights") if isinstance(f, dict) else None for f in frames], len(names), path, "weights")
-    times = [_number(f["time"], path, f"frame {i} time") for i, f in enumerate(frames) if "time" in f]
-    return names, w, np.array(times, np.float64) if frames and len(times) == len(frames) else None, fps
+    lam = decode_file(data, _Lam, path)
+    w = _rows([f.weights for f in lam.frames], len(lam.names), path, "frames[{}].weights")
+    ignored = LAM_HEAD_POSE_IGNORED if "head_pose" in data else ""
+    return list(lam.names), w, _times([f.time for f in lam.frames]), fps, ignored
 
 
-def _keyed_frames(frames: list, path: Path, fps: float) -> _Layout:
+def _keyed_frames(frames: list, path: Path, fps: float, where: str) -> _Layout:
     """``[{"time": t, "blendshapes": {name: value}}]``: one object per frame, weights by name."""
-    names = list(frames[0]["blendshapes"]) if isinstance(frames[0].get("blendshapes"), dict) else []
-    names = _names(names, path, "blendshapes")
-    rows, times = [], []
-    for i, f in enumerate(frames):
-        b = f.get("blendshapes") if isinstance(f, dict) else None
-        if not isinstance(b, dict) or set(b) != set(names):
-            raise AvatarFileError(path, f"frame {i} must name the same {len(names)} blendshapes as frame 0")
-        rows.append([_number(b[n], path, f"frame {i} {n}") for n in names])
-        if "time" in f:
-            times.append(_number(f["time"], path, f"frame {i} time"))
-    t = np.array(times, np.float64) if len(times) == len(frames) else None
-    return names, np.array(rows, np.float64).reshape(len(rows), len(names)), t, fps
+    keyed = decode_file(frames, list[_Keyed], path, where)
+    names = list(keyed[0].blendshapes)
+    for i, f in enumerate(keyed):
+        if set(f.blendshapes) != set(names):
+            raise AvatarFileError(path, f"{where}[{i}].blendshapes must name the same {len(names)} blendshapes as "
+                                  "frame 0")
+    w = np.array([[f.blendshapes[n] for n in names] for f in keyed], np.float64).reshape(len(keyed), len(names))
+    return names, w, _times([f.time for f in keyed]), fps, ""
 
 
-def _category_frames(frames: list, path: Path, fps: float) -> _Layout:
-    """MediaPipe face-landmarker results: per frame a list of categories (or a result object holding them)."""
-    parsed = [_category_frame(f, path, i) for i, f in enumerate(frames)]
+def _category_frame(frame: list[_Category] | _Result, path: Path, where: str) -> tuple[dict[str, float],
+                                                                                      float | None]:
+    """({name: score}, time in seconds or None) of one MediaPipe frame."""
+    stamp, cats = None, frame
+    if isinstance(frame, _Result):
+        ms = frame.timestampMs if frame.timestampMs is not None else frame.timestamp_ms
+        s = frame.time if frame.time is not None else frame.timestamp
+        stamp = ms * 1e-3 if ms is not None else s
+        faces = frame.faceBlendshapes if frame.faceBlendshapes is not None else frame.face_blendshapes
+        if faces is not None and not faces:
+            raise AvatarFileError(path, f"{where} has no face")
+        face = frame if faces is None else faces[0]
+        cats = face.categories if isinstance(face, _Face | _Result) else face
+    if cats is None:
+        raise AvatarFileError(path, f"{where} is no list of blendshape categories")
+    out: dict[str, float] = {}
+    for c in cats:
+        name = c.categoryName if c.categoryName is not None else c.category_name
+        if name is None:
+            raise AvatarFileError(path, f"{where} has a category without a name")
+        out[name] = c.score
+    return out, stamp
+
+
+def _category_frames(frames: Any, path: Path, fps: float, where: str | None) -> _Layout:
+    """MediaPipe face-landmarker results: per frame a list of categories (or a result object holding them);
+    `where` None: one result alone (`frames` is the file's object)."""
+    if where is None:
+        parsed = [_category_frame(decode_file(frames, _Result, path), path, "the result")]
+    else:
+        results = decode_file(frames, list[list[_Category] | _Result], path, where)
+        parsed = [_category_frame(f, path, f"{where}[{i}]") for i, f in enumerate(results)]
     names = list(dict.fromkeys(n for d, _ in parsed for n in d))
     if parsed and any(set(d) != set(names) for d, _ in parsed):
         raise AvatarFileError(path, "frames name different blendshape categories")
     w = np.array([[d[n] for n in names] for d, _ in parsed], np.float64).reshape(len(parsed), len(names))
-    stamps = [st for _, st in parsed]
-    t = np.array(stamps, np.float64) if parsed and all(st is not None for st in stamps) else None
-    return names, w, t, fps
+    return names, w, _times([st for _, st in parsed]), fps, ""
 
 
 def _series(data: dict, path: Path, fps: float) -> _Layout:
     """A plain ``{name: [values], "fps": rate}``."""
-    series = {k: v for k, v in data.items() if k not in ("fps", "metadata")}
-    if not series or not all(isinstance(v, list) for v in series.values()):
-        raise AvatarFileError(path, "is no ARKit take (expected LAM's names/frames, Audio2Face's facsNames/weightMat, "
-                              "names/values, MediaPipe category lists, [{time, blendshapes}] or {name: [values]})")
+    try:
+        series = decode({k: v for k, v in data.items() if k not in ("fps", "metadata")}, dict[str, list[Any]])
+    except SchemaError:
+        raise AvatarFileError(path, _NO_TAKE) from None
     lengths = {len(v) for v in series.values()}
-    if len(lengths) != 1:
+    if len(lengths) > 1:
         raise AvatarFileError(path, f"blendshape series have different lengths {sorted(lengths)[:4]}")
+    if not series:
+        raise AvatarFileError(path, _NO_TAKE)
     names = list(series)
-    w = np.array([[_number(x, path, f"{n} value") for x in series[n]] for n in names], np.float64).T
-    return names, w.reshape(lengths.pop(), len(names)), None, fps
+    w = np.array([decode_file(series[n], _Row, path, shown(n)[:60]) for n in names], np.float64).T
+    return names, w.reshape(lengths.pop(), len(names)), None, fps, ""
+
+
+def _frames(frames: list, path: Path, fps: float, where: str) -> _Layout:
+    """A list of frames: keyed by name, or MediaPipe categories."""
+    if frames and isinstance(frames[0], dict) and "blendshapes" in frames[0]:
+        return _keyed_frames(frames, path, fps, where)
+    return _category_frames(frames, path, fps, where)
 
 
 def _json_take(data: Any, path: Path) -> _Layout:
-    """(names, weights (T, B), times or None, fps) of any of the JSON layouts (see the module docstring)."""
-    fps = _json_fps(data, path)
-    if isinstance(data, dict):
-        if "names" in data and "frames" in data:  # LAM Audio2Expression
-            return _lam_layout(data, path, fps)
-        if "facsNames" in data and "weightMat" in data:  # NVIDIA Audio2Face's blendshape export
-            names = _names(data["facsNames"], path, "facsNames")
-            return names, _rows(data["weightMat"], len(names), path, "weightMat"), None, fps
-        if "names" in data and "values" in data:  # names and a (T, B) table
-            names = _names(data["names"], path, "names")
-            return names, _rows(data["values"], len(names), path, "values"), None, fps
-        if "faceBlendshapes" in data or "face_blendshapes" in data:  # one MediaPipe FaceLandmarkerResult
-            return _category_frames([data], path, fps)
-    frames = data.get("frames") if isinstance(data, dict) and isinstance(data.get("frames"), list) else data
-    if isinstance(frames, list) and frames and isinstance(frames[0], dict) and "blendshapes" in frames[0]:
-        return _keyed_frames(frames, path, fps)
-    if isinstance(frames, list):
-        return _category_frames(frames, path, fps)
-    if isinstance(data, dict):
-        return _series(data, path, fps)
-    raise AvatarFileError(path, f"is no ARKit take (top level is {type(data).__name__})")
+    """(names, weights (T, B), times or None, fps, ignored) of any of the JSON layouts (the module docstring):
+    which one by the keys a file has, then decoded by the layout's schema."""
+    if isinstance(data, list):
+        return _frames(data, path, JSON_FPS, "")
+    if not isinstance(data, dict):
+        raise AvatarFileError(path, f"is no ARKit take (top level is {type(data).__name__})")
+    rates = decode_file(data, _Rates, path)
+    meta = None if rates.metadata is None else rates.metadata.fps
+    fps = next((f for f in (meta, rates.exportFps, rates.fps) if f is not None), JSON_FPS)
+    if "names" in data and "frames" in data:  # LAM Audio2Expression
+        return _lam_layout(data, path, fps)
+    if "facsNames" in data and "weightMat" in data:  # NVIDIA Audio2Face's blendshape export
+        a2f = decode_file(data, _Audio2Face, path)
+        return list(a2f.facsNames), _rows(a2f.weightMat, len(a2f.facsNames), path, "weightMat[{}]"), None, fps, ""
+    if "names" in data and "values" in data:  # names and a (T, B) table
+        table = decode_file(data, _Table, path)
+        return list(table.names), _rows(table.values, len(table.names), path, "values[{}]"), None, fps, ""
+    if "faceBlendshapes" in data or "face_blendshapes" in data:  # one MediaPipe FaceLandmarkerResult
+        return _category_frames(data, path, fps, None)
+    if isinstance(data.get("frames"), list):
+        return _frames(data["frames"], path, fps, "frames")
+    return _series(data, path, fps)
 
 
 def read_arkit_json(path: str | Path) -> Take:
     """An ARKit JSON take in any of the layouts above."""
     path = Path(path)
     data = parse_json(read_bytes(path, MAX_TAKE_BYTES, "a take file"), path)
-    names, w, t, fps = _json_take(data, path)
+    names, w, t, fps, ignored = _json_take(data, path)
     if len(w) == 0 or not names:
         raise AvatarFileError(path, "has no frames")
     if len(w) > MAX_FRAMES or len(names) > MAX_COLUMNS:
@@ -419,10 +482,8 @@ def read_arkit_json(path: str | Path) -> Take:
     if len(set(names)) != len(names):
         raise AvatarFileError(path, "repeats a blendshape name")
     times = np.arange(len(w), dtype=np.float64) / fps if t is None else t - t[0]
-    take = Take(_checked_weights(w, path), tuple(names), _checked_times(times, path), fps, name=path.stem)
-    if isinstance(data, dict) and "names" in data and "frames" in data and "head_pose" in data:
-        take.ignored = LAM_HEAD_POSE_IGNORED
-    return take
+    return Take(_checked_weights(w, path), tuple(names), _checked_times(times, path), fps, name=path.stem,
+                ignored=ignored)
 
 
 def read_take(path: str | Path) -> Take:
