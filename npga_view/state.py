@@ -20,10 +20,10 @@ from npga_core.camera.orbit import OrbitCamera
 from npga_core.errors import AvatarFileError, shown
 from npga_core.files.atomic import atomic_write
 from npga_core.files.places import user_config_dir
-from npga_core.files.schema import FilePath, decode, decode_file
 from npga_core.files.untrusted import read_json
 from npga_core.inspection.inspector import InspectSettings
 from npga_core.posing.smoothing import check_playback
+from npga_core.schema import FilePath, decode, decode_file
 from npga_view.actions import Action
 
 MAX_SLIDERS = 64  # PCA directions, or a rig's channels (ARKit's 52 and more)

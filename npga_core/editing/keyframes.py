@@ -37,7 +37,6 @@ from scipy.spatial.transform import Rotation, Slerp
 from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError, brief
 from npga_core.files.atomic import atomic_write
-from npga_core.files.schema import Text, decode
 from npga_core.files.untrusted import (
     MAX_CODE,
     MAX_FRAMES,
@@ -47,6 +46,7 @@ from npga_core.files.untrusted import (
     MAX_TIME_S,
     read_json,
 )
+from npga_core.schema import Text, decode
 
 FORMAT_VERSION = 1
 INTERPOLATIONS = ("linear", "smooth")

@@ -39,9 +39,9 @@ from npga_core.errors import AvatarFileError, shown
 from npga_core.files.atomic import atomic_write
 from npga_core.files.blendshape_names import ANGLE_NAMES, match_names
 from npga_core.files.sequences import ExpressionSequence
-from npga_core.files.schema import Name, SchemaError, decode, decode_file
 from npga_core.files.untrusted import parse_json, read_bytes
 from npga_core.model.blendshapes import BlendshapeBasis
+from npga_core.schema import Name, SchemaError, decode, decode_file
 
 #: Largest take file read (a 52-shape take at 60 fps is ~0.6 kB a frame: an hour is ~130 MB; 64 MiB bounds the
 #: parsed form well under a gigabyte).

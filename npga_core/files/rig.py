@@ -12,8 +12,8 @@ from msgspec import Meta
 
 from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError
-from npga_core.files.schema import Finite, decode_file, number
 from npga_core.files.untrusted import MAX_IMAGE_SIDE, read_json, shown
+from npga_core.schema import Finite, decode_file, number
 
 #: Most cameras read from one rig file.
 MAX_CAMERAS = 1024

@@ -16,7 +16,7 @@ file is closed everywhere at once:
 - names and paths of any encoding are shown escaped (`shown`, from npga_core.errors);
 - JSON has a size bound and a nesting-depth bound checked by a non-recursive scan before parsing; NaN,
   Infinity, non-finite floats and absurdly long integers are refused. What the parsed value must look like is
-  declared as a schema and checked by `npga_core.files.schema` (field paths in its messages).
+  declared as a schema and checked by `npga_core.schema` (field paths in its messages).
 
 Every failure is an `AvatarFileError(path, "one line")`.
 """

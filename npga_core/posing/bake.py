@@ -26,8 +26,8 @@ import torch
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
 from npga_core.files.places import cache_folder_for
-from npga_core.files.schema import decode_file, number
 from npga_core.files.untrusted import file_size, open_regular, parse_json
+from npga_core.schema import decode_file, number
 
 BAKE_MAGIC = b"NPGABAKE"
 BAKE_FORMAT = 1

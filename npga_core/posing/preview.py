@@ -35,10 +35,10 @@ from scipy.spatial import cKDTree
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
 from npga_core.files.places import cache_folder_for
-from npga_core.files.schema import decode_file, number
 from npga_core.files.untrusted import bounded_floats, parse_json, read_npz, real_floats
 from npga_core.model.avatar import Avatar
 from npga_core.posing.fastpose import FastPoser, Lane
+from npga_core.schema import decode_file, number
 
 PREVIEW_FORMAT = 1
 MAX_CACHED_NEIGHBOURS = 64  # probes per Gaussian accepted from a cache file
@@ -125,8 +125,8 @@ class PreviewModel:
         budget = 4096 + n * (8 * 2 * MAX_CACHED_NEIGHBOURS + 16)
         try:
             f = read_npz(path, budget, keys=("probes", "neighbours", "weights", "sensitivity", "meta"), max_members=8)
-            meta = decode_file(parse_json(f["meta"].astype(np.uint8).tobytes(), path, max_depth=4), dict[str, Any], path,
-                               "meta")
+            text = f["meta"].astype(np.uint8).tobytes()
+            meta = decode_file(parse_json(text, path, max_depth=4), dict[str, Any], path, "meta")
             if meta.get("format") != PREVIEW_FORMAT or meta.get("key") != key:
                 return None
             probes, neighbours, weights = f["probes"], f["neighbours"], f["weights"]

@@ -18,9 +18,9 @@ from msgspec import Meta
 from npga_core.errors import AvatarFileError, brief
 from npga_core.files.atomic import atomic_write
 from npga_core.files.rig import load_rig
-from npga_core.files.schema import Finite, decode_file
 from npga_core.files.untrusted import read_json
 from npga_core.model.expression import ExpressionSpace
+from npga_core.schema import Finite, decode_file
 from npga_view import actions as A
 from npga_view.controllers.bake import BakeController
 from npga_view.controllers.host import ViewerHost

@@ -47,10 +47,12 @@ class SchemaError(ValueError):
     """A value that does not match its declared schema; the text is "field.path: problem"."""
 
 
-_WORDS = {f"`str` matching regex {_NO_NUL!r}": "a path without NUL bytes", "got `bool`": "got a boolean", "`float`": "a number", "`int`": "an integer", "`str`": "a string", "`array`": "a list",
-          "`object`": "an object", "`bool`": "true or false", "`null`": "null", "`int | null`": "an integer or null",
-          "`float | null`": "a number or null", "`str | null`": "a string or null",
-          "`object | null`": "an object or null", "`array | null`": "a list or null"}
+_WORDS = {  # msgspec's words -> ours (the more specific first)
+    f"`str` matching regex {_NO_NUL!r}": "a path without NUL bytes", "got `bool`": "got a boolean",
+    "`float`": "a number", "`int`": "an integer", "`str`": "a string", "`array`": "a list", "`object`": "an object",
+    "`bool`": "true or false", "`null`": "null", "`int | null`": "an integer or null",
+    "`float | null`": "a number or null", "`str | null`": "a string or null", "`object | null`": "an object or null",
+    "`array | null`": "a list or null"}
 _STEP = re.compile(r"\.([^.\[]+)|\[(\d+|\.\.\.)\]")
 _FLOAT = re.compile(r"(?<![\w.])(\d+\.\d+(?:e[+-]?\d+)?|\d+e[+-]?\d+)")
 
