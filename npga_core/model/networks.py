@@ -330,11 +330,12 @@ class MLPConfig:
 
     @staticmethod
     def from_json(d: object, where: str = "") -> MLPConfig:
-        """The checked architecture of a header's description (`_MLPJson`); ValueError naming the field."""
+        """The checked architecture of a header's description (`_MLPJson`); ValueError naming `where` and the
+        field."""
         j: _MLPJson = decode(d, _MLPJson, where)
-        if j.outputs is None and j.routes is None:
-            raise ValueError(f"{where}: malformed MLP architecture: neither outputs nor routes given")
         try:
+            if j.outputs is None and j.routes is None:
+                raise ValueError("malformed MLP architecture: neither outputs nor routes given")
             cfg = MLPConfig(feature_dim=j.feature_dim, code_dim=j.code_dim, outputs=list(j.outputs or []),
                             hidden=j.hidden, depth=j.depth, activation=j.activation, pos_freqs=j.pos_freqs,
                             skips=list(j.skips), inputs=None if j.inputs is None else [InputSpec.from_json(s)
@@ -342,9 +343,9 @@ class MLPConfig:
                             condition_dim=j.condition_dim, slope=j.slope, output_activation=j.output_activation,
                             routes=None if j.routes is None else [Route.from_json(r) for r in j.routes],
                             out_width=j.out_dim, blend=j.blend)
+            cfg.validate()
         except ValueError as e:
-            raise ValueError(f"{where}: malformed MLP architecture: {e}") from None
-        cfg.validate()
+            raise ValueError(f"{where}: {e}" if where else str(e)) from None
         return cfg
 
 
