@@ -377,35 +377,45 @@ def _common(k: _Key) -> dict[str, Any]:
     return {"ease_in": k.ease_in, "ease_out": k.ease_out, "hold": k.hold, "label": k.label}
 
 
+def _distinct_times(track: str, keys: list[_ExpressionKey] | list[_CameraKey]) -> None:
+    """ValueError naming the later of two keys of a track closer than `SAME_TIME`."""
+    seen: list[float] = []
+    for j, k in enumerate(keys):
+        i = bisect.bisect_left(seen, k.time - SAME_TIME)
+        if i < len(seen) and abs(seen[i] - k.time) < SAME_TIME:
+            raise ValueError(f"{track}[{j}]: two {track} keys at time {k.time:g}")
+        bisect.insort(seen, k.time)
+
+
+def _add_camera(tl: KeyframeTimeline, c: _CameraKey) -> None:
+    cam = Camera.from_dict(c.camera, source="camera")
+    if max(cam.width, cam.height) > MAX_IMAGE_SIDE:
+        raise ValueError(f"camera image {cam.width}x{cam.height} is larger than {MAX_IMAGE_SIDE} pixels on a side")
+    tl.add_camera(c.time, cam, **_common(c))
+
+
 def _parse(data: object) -> KeyframeTimeline:
+    """The timeline of a file's parsed JSON: its version, then `_File`'s schema, then each key added (ValueError
+    naming the field or the key)."""
     if not isinstance(data, dict) or "npga_keyframes" not in data:
         raise ValueError("not an npga-view keyframe file (no 'npga_keyframes' version)")
     if data["npga_keyframes"] != FORMAT_VERSION:
         raise ValueError(f"keyframe format version {brief(data['npga_keyframes'])} is not supported (expected "
                          f"{FORMAT_VERSION})")
-    f = decode(data, _File)
+    f: _File = decode(data, _File)
+    _distinct_times("expression", f.expression)
+    _distinct_times("camera", f.camera)
     tl = KeyframeTimeline(code_dim=f.code_dim)
-    for track, keys in (("expression", f.expression), ("camera", f.camera)):
-        seen: list[float] = []
-        for j, k in enumerate(keys):
-            i = bisect.bisect_left(seen, k.time - SAME_TIME)
-            if i < len(seen) and abs(seen[i] - k.time) < SAME_TIME:
-                raise ValueError(f"{track}[{j}]: two {track} keys at time {k.time:g}")
-            bisect.insort(seen, k.time)
-    for j, e in enumerate(f.expression):
-        try:
+    where = ""
+    try:
+        for j, e in enumerate(f.expression):
+            where = f"expression[{j}]"
             tl.add_expression(e.time, np.asarray(e.code, np.float64), e.interp, **_common(e))
-        except ValueError as err:
-            raise ValueError(f"expression[{j}]: {err}") from None
-    for j, c in enumerate(f.camera):
-        try:
-            cam = Camera.from_dict(c.camera, source="camera")
-        except ValueError as err:
-            raise ValueError(f"camera[{j}]: {err}") from None
-        if max(cam.width, cam.height) > MAX_IMAGE_SIDE:
-            raise ValueError(f"camera[{j}]: camera image {cam.width}x{cam.height} is larger than "
-                             f"{MAX_IMAGE_SIDE} pixels on a side")
-        tl.add_camera(c.time, cam, **_common(c))
+        for j, c in enumerate(f.camera):
+            where = f"camera[{j}]"
+            _add_camera(tl, c)
+    except ValueError as err:
+        raise ValueError(f"{where}: {err}") from None
     if f.code_dim is not None and tl.expression and tl.code_dim != f.code_dim:
         raise ValueError(f"expression codes have {tl.code_dim} dims, code_dim says {f.code_dim}")
     return tl
