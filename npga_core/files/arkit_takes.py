@@ -7,8 +7,8 @@
   the take's own is its median row spacing snapped to whole timecode frames (`recorded_rate`: 30 on a 60 count). Head
   angles (radians) give the head pose; eye angles are kept; angle columns all zero mean "not recorded".
 - JSON (declared and decoded in `npga_core.files.arkit_json`): LAM Audio2Expression's ``{"names", "metadata":
-  {"fps"}, "frames": [{"weights", "time"}]}`` (a
-  ``head_pose`` beside them, as in LAM_WebRender's example, is ignored and said so: `LAM_HEAD_POSE_IGNORED`);
+  {"fps"}, "frames": [{"weights", "time"}]}`` (a ``head_pose`` beside them, as in LAM_WebRender's example, is
+  ignored and said so: `LAM_HEAD_POSE_IGNORED`);
   NVIDIA Audio2Face's blendshape export ``{"exportFps", "numPoses", "numFrames", "facsNames", "weightMat"}``
   (one row of ``numPoses`` weights per frame at ``exportFps``); ``{"names": [...], "values": [[...]]}``;
   MediaPipe face-landmarker category lists (per frame ``[{"categoryName"|"category_name", "score"}]``,
