@@ -12,35 +12,22 @@ from __future__ import annotations
 import math
 import re
 from pathlib import Path
-from typing import Annotated, Any, TypeVar
+from typing import Annotated, Any
 
 import msgspec
 from msgspec import Meta
 
 from npga_core.errors import AvatarFileError, brief
 
-T = TypeVar("T")
-
 #: Largest magnitude of a number read without a tighter bound (NaN and +-Inf fail every bound).
 HUGE = 1e300
 
 Finite = Annotated[float, Meta(ge=-HUGE, le=HUGE)]
-NonNegative = Annotated[int, Meta(ge=0, le=2**62)]
 Name = Annotated[str, Meta(min_length=1, max_length=128)]
 Text = Annotated[str, Meta(max_length=4096)]
 #: A file path named inside a file (sessions, settings): no NUL byte, shorter than 4096 characters.
 _NO_NUL = "^[^\\x00]*$"
 FilePath = Annotated[str, Meta(min_length=1, max_length=4095, pattern=_NO_NUL)]
-
-
-def bounded(lo: float, hi: float) -> Any:
-    """The type of a number in [lo, hi]."""
-    return Annotated[float, Meta(ge=lo, le=hi)]
-
-
-def integer(lo: int, hi: int) -> Any:
-    """The type of an integer in [lo, hi]."""
-    return Annotated[int, Meta(ge=lo, le=hi)]
 
 
 class SchemaError(ValueError):
@@ -105,10 +92,10 @@ def decode(value: Any, schema: Any, where: str = "") -> Any:
         raise SchemaError(problem(e, value, where)) from None
 
 
-def decode_file(value: Any, schema: type[T], path: str | Path, where: str = "") -> T:
+def decode_file(value: Any, schema: Any, path: str | Path, where: str = "") -> Any:
     """`decode` whose failure is an AvatarFileError naming `path` and the field path."""
     try:
-        return decode(value, schema, where)  # type: ignore[no-any-return]
+        return decode(value, schema, where)
     except SchemaError as e:
         raise AvatarFileError(path, str(e)) from None
 
@@ -118,5 +105,5 @@ def number(value: Any, what: str, lo: float = -HUGE, hi: float = HUGE, whole: bo
     integer, a float with an integral value accepted as one); SchemaError("what: problem") otherwise."""
     if whole and isinstance(value, float) and value.is_integer() and abs(value) <= 2**62:
         value = int(value)
-    kind = integer(int(max(lo, -2**62)), int(min(hi, 2**62))) if whole else bounded(lo, hi)
-    return decode(value, kind, what)
+    bounds = Meta(ge=int(max(lo, -2**62)), le=int(min(hi, 2**62))) if whole else Meta(ge=lo, le=hi)
+    return decode(value, Annotated[int, bounds] if whole else Annotated[float, bounds], what)

@@ -140,28 +140,32 @@ def _keyed_frames(frames: list, path: Path, fps: float, where: str) -> Layout:
     return names, w, _times([f.time for f in keyed]), fps, ""
 
 
-def _category_frame(frame: list[_Category] | _Result, path: Path, where: str) -> tuple[dict[str, float],
-                                                                                      float | None]:
-    """({name: score}, time in seconds or None) of one MediaPipe frame."""
-    stamp, cats = None, frame
-    if isinstance(frame, _Result):
-        ms = frame.timestampMs if frame.timestampMs is not None else frame.timestamp_ms
-        s = frame.time if frame.time is not None else frame.timestamp
-        stamp = ms * 1e-3 if ms is not None else s
-        faces = frame.faceBlendshapes if frame.faceBlendshapes is not None else frame.face_blendshapes
-        if faces is not None and not faces:
-            raise AvatarFileError(path, f"{where} has no face")
-        face = frame if faces is None else faces[0]
-        cats = face.categories if isinstance(face, _Face | _Result) else face
-    if cats is None:
-        raise AvatarFileError(path, f"{where} is no list of blendshape categories")
+def _scores(cats: list[_Category], path: Path, where: str) -> dict[str, float]:
     out: dict[str, float] = {}
     for c in cats:
         name = c.categoryName if c.categoryName is not None else c.category_name
         if name is None:
             raise AvatarFileError(path, f"{where} has a category without a name")
         out[name] = c.score
-    return out, stamp
+    return out
+
+
+def _category_frame(frame: list[_Category] | _Result, path: Path, where: str) -> tuple[dict[str, float],
+                                                                                      float | None]:
+    """({name: score}, time in seconds or None) of one MediaPipe frame."""
+    if isinstance(frame, list):
+        return _scores(frame, path, where), None
+    ms = frame.timestampMs if frame.timestampMs is not None else frame.timestamp_ms
+    seconds = frame.time if frame.time is not None else frame.timestamp
+    stamp = ms * 1e-3 if ms is not None else seconds
+    faces = frame.faceBlendshapes if frame.faceBlendshapes is not None else frame.face_blendshapes
+    if faces is not None and not faces:
+        raise AvatarFileError(path, f"{where} has no face")
+    face = frame if faces is None else faces[0]
+    cats = face if isinstance(face, list) else face.categories
+    if cats is None:
+        raise AvatarFileError(path, f"{where} is no list of blendshape categories")
+    return _scores(cats, path, where), stamp
 
 
 def _category_frames(frames: Any, path: Path, fps: float, where: str | None) -> Layout:

@@ -53,7 +53,7 @@ class _DynamicsV2(msgspec.Struct):
 def _section(dyn: object, schema: type[T]) -> T:
     """The decoded `dynamics` section (HeaderError naming the field)."""
     try:
-        return decode(dyn, schema, "dynamics")  # type: ignore[no-any-return]
+        return decode(dyn, schema, "dynamics")
     except SchemaError as e:
         raise HeaderError(str(e)) from None
 
