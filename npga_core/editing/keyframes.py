@@ -37,6 +37,7 @@ from scipy.spatial.transform import Rotation, Slerp
 from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError, brief
 from npga_core.files.atomic import atomic_write
+from npga_core.files.rig import camera_of
 from npga_core.files.untrusted import (
     MAX_CODE,
     MAX_FRAMES,
@@ -361,7 +362,7 @@ class _ExpressionKey(_Key):
 
 
 class _CameraKey(_Key):
-    camera: dict[str, Any]  # checked by Camera.from_dict
+    camera: Any  # a `CameraFile`, decoded by `camera_of`
 
 
 class _File(msgspec.Struct):
@@ -388,7 +389,7 @@ def _distinct_times(track: str, keys: list[_ExpressionKey] | list[_CameraKey]) -
 
 
 def _add_camera(tl: KeyframeTimeline, c: _CameraKey) -> None:
-    cam = Camera.from_dict(c.camera, source="camera")
+    cam = camera_of(c.camera, "camera")
     if max(cam.width, cam.height) > MAX_IMAGE_SIDE:
         raise ValueError(f"camera image {cam.width}x{cam.height} is larger than {MAX_IMAGE_SIDE} pixels on a side")
     tl.add_camera(c.time, cam, **_common(c))

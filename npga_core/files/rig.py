@@ -13,26 +13,49 @@ from msgspec import Meta
 from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError
 from npga_core.files.untrusted import MAX_IMAGE_SIDE, read_json, shown
-from npga_core.schema import Finite, decode_file, number
+from npga_core.schema import Finite, decode, decode_file, number
 
 #: Most cameras read from one rig file.
 MAX_CAMERAS = 1024
 
 
-def load_camera(path: str | Path) -> Camera:
-    """One camera as `Camera.to_json` writes it, read as untrusted JSON (regular file, size, depth and number
-    bounds); AvatarFileError naming the file and the problem."""
-    path = Path(path)
-    data = read_json(path, what="a camera file")
-    try:
-        return Camera.from_dict(data, source="camera")
-    except ValueError as e:
-        raise AvatarFileError(path, str(e).removeprefix("camera: ")) from None
-
-
 _Row3 = tuple[Finite, Finite, Finite]
 _Row4 = tuple[Finite, Finite, Finite, Finite]
 _Matrix4 = tuple[_Row4, _Row4, _Row4, _Row4]
+
+
+class CameraFile(msgspec.Struct):
+    """One camera as `Camera.to_dict` writes it (width and height whole numbers; `Camera` checks the rest)."""
+
+    width: Finite
+    height: Finite
+    fx: Finite
+    fy: Finite
+    cx: Finite
+    cy: Finite
+    world_to_camera: _Matrix4
+
+
+def camera_of(data: object, where: str = "") -> Camera:
+    """The `Camera` of a parsed camera object (`CameraFile`'s schema, then `Camera`'s own checks); ValueError
+    naming the field after `where`."""
+    c: CameraFile = decode(data, CameraFile, where)
+    w, h = (number(v, f"{where}.{k}" if where else k, 1, 2**31 - 1, whole=True)
+            for k, v in (("width", c.width), ("height", c.height)))
+    try:
+        return Camera(np.asarray(c.world_to_camera, np.float64), c.fx, c.fy, c.cx, c.cy, w, h)
+    except ValueError as e:
+        raise ValueError(f"{where}: {e}" if where else str(e)) from None
+
+
+def load_camera(path: str | Path) -> Camera:
+    """One camera as `Camera.to_json` writes it, read as untrusted JSON (regular file, size, depth and number
+    bounds) and decoded by `CameraFile`; AvatarFileError naming the file and the problem."""
+    path = Path(path)
+    try:
+        return camera_of(read_json(path, what="a camera file"))
+    except ValueError as e:
+        raise AvatarFileError(path, str(e)) from None
 
 
 class _RigFile(msgspec.Struct):
