@@ -34,14 +34,18 @@ class SchemaError(ValueError):
     """A value that does not match its declared schema; the text is "field.path: problem"."""
 
 
-_WORDS = {  # msgspec's words -> ours (the more specific first)
-    f"`str` matching regex {_NO_NUL!r}": "a path without NUL bytes", "got `bool`": "got a boolean",
-    "`float`": "a number", "`int`": "an integer", "`str`": "a string", "`array`": "a list", "`object`": "an object",
-    "`bool`": "true or false", "`null`": "null", "`int | null`": "an integer or null",
-    "`float | null`": "a number or null", "`str | null`": "a string or null", "`object | null`": "an object or null",
-    "`array | null`": "a list or null"}
+_NOUNS = {"float": "a number", "int": "an integer", "str": "a string", "array": "a list", "object": "an object",
+          "bool": "a boolean", "null": "null", "bytes": "bytes"}
+_TYPES = re.compile(r"`([a-z]+(?: \| [a-z]+)*)`")
+_PATTERNS = {f"`str` matching regex {_NO_NUL!r}": "a path without NUL bytes"}
 _STEP = re.compile(r"\.([^.\[]+)|\[(\d+|\.\.\.)\]")
 _FLOAT = re.compile(r"(?<![\w.])(\d+\.\d+(?:e[+-]?\d+)?|\d+e[+-]?\d+)")
+
+
+def _nouns(m: re.Match[str]) -> str:
+    """msgspec's `float | null` as "a number or null" (anything else, a field's name, as it is)."""
+    kinds = m.group(1).split(" | ")
+    return " or ".join(_NOUNS[k] for k in kinds) if all(k in _NOUNS for k in kinds) else m.group(0)
 
 
 def _value_at(value: Any, at: str) -> tuple[bool, Any]:
@@ -70,8 +74,9 @@ def problem(e: msgspec.ValidationError, value: Any, where: str = "") -> str:
     if at.startswith("key") or "` in `" in at:  # "key` in `$.names": a dict key
         msg, at = msg.replace("`str`", "a name"), at.split("` in `")[-1]
     field = at.removeprefix("$").removeprefix(".")
-    for k, v in _WORDS.items():
+    for k, v in _PATTERNS.items():
         msg = msg.replace(k, v)
+    msg = _TYPES.sub(_nouns, msg)
     msg = _FLOAT.sub(lambda m: f"{float(m.group(1)):g}", msg).replace("Object", "object")
     msg = msg[:1].lower() + msg[1:]
     found, got = _value_at(value, at)
