@@ -66,7 +66,7 @@ def check_section(entry: Any, n: int, version: int = RIG_VERSION) -> None:
     Gaussians in a file of format `version`."""
     s = decode(entry, Section, "rig")
     if len(set(s.channels)) != len(s.channels):
-        raise ValueError("rig.channels has duplicate names")
+        raise ValueError("rig.channels must be distinct names (one repeats)")
     if s.carrier == "triangle" and version < SKIN_VERSION:
         raise ValueError(f"rig.carrier 'triangle' needs format version {SKIN_VERSION}")
     points = n
@@ -74,7 +74,7 @@ def check_section(entry: Any, n: int, version: int = RIG_VERSION) -> None:
         if s.points is None or s.skin is None:
             raise ValueError("rig.points and rig.skin are needed for carrier 'triangle' (the skinned mesh)")
         if len(set(s.skin.joints)) != len(s.skin.joints):
-            raise ValueError("rig.skin.joints has duplicate names")
+            raise ValueError("rig.skin.joints must be distinct names (one repeats)")
         points = s.points
     if s.support > points:
         raise ValueError(f"rig.support must be an integer in 0..{points} (the points some channel moves)")
