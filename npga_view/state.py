@@ -10,8 +10,11 @@ import json
 import os
 from dataclasses import dataclass, field
 from pathlib import Path
+from typing import Annotated
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from npga_core.camera.orbit import OrbitCamera
 from npga_core.errors import AvatarFileError, shown
@@ -20,6 +23,7 @@ from npga_core.files.places import user_config_dir
 from npga_core.files.untrusted import read_json
 from npga_core.inspection.inspector import InspectSettings
 from npga_core.posing.smoothing import check_playback
+from npga_core.schema import FilePath, decode, decode_file
 from npga_view.actions import Action
 
 MAX_SLIDERS = 64  # PCA directions, or a rig's channels (ARKit's 52 and more)
@@ -28,46 +32,67 @@ SESSION_VERSION = 1
 MAX_SESSION_BYTES = 4 * 2**20  # sessions, recent files and presets are small JSON files
 
 
-def _session_number(v: object, what: str, lo: float = -1e12, hi: float = 1e12) -> float:
-    """A finite number in [lo, hi] from a session file (strings such as "nan" are refused)."""
-    if isinstance(v, bool) or not isinstance(v, int | float) or not lo <= v <= hi:
-        raise ValueError(f"{what} must be a number in [{lo:g}, {hi:g}], got {str(v)[:40]}")
-    return float(v)
+_Wide = Annotated[float, Meta(ge=-1e12, le=1e12)]
+_Angle = Annotated[float, Meta(ge=-1e6, le=1e6)]
+_Unset = msgspec.UnsetType
 
 
-def _session_dict(v: object, what: str) -> dict:
-    if not isinstance(v, dict):
-        raise ValueError(f"{what} must be an object")
-    return v
+class _Camera(msgspec.Struct):
+    """A session's orbit camera (`OrbitCamera.to_dict`); a field left out keeps its default."""
+
+    target: tuple[_Wide, _Wide, _Wide] | _Unset = msgspec.UNSET
+    yaw: _Angle | _Unset = msgspec.UNSET
+    pitch: _Angle | _Unset = msgspec.UNSET
+    roll: _Angle | _Unset = msgspec.UNSET
+    distance: Annotated[float, Meta(ge=1e-6, le=1e6)] | _Unset = msgspec.UNSET
+    fov_y: Annotated[float, Meta(ge=1.0, le=170.0)] | _Unset = msgspec.UNSET
 
 
-def _session_camera(value: object) -> OrbitCamera:
-    """The orbit camera of a session (its numbers checked)."""
-    cam = _session_dict(value, "camera")
-    target = cam.get("target", [0.0, 0.0, 0.0])
-    if not (isinstance(target, list) and len(target) == 3):
-        raise ValueError("camera.target must be 3 numbers")
-    for x in target:
-        _session_number(x, "camera.target")
-    for k, (lo, hi) in {"yaw": (-1e6, 1e6), "pitch": (-1e6, 1e6), "roll": (-1e6, 1e6), "distance": (1e-6, 1e6),
-                        "fov_y": (1.0, 170.0)}.items():
-        if k in cam:
-            _session_number(cam[k], f"camera.{k}", lo, hi)
-    return OrbitCamera.from_dict(cam)
+class _Timeline(msgspec.Struct):
+    """A session's playback settings (`Timeline` but `playing`, which is never restored)."""
+
+    loop: bool | _Unset = msgspec.UNSET
+    speed: _Wide | _Unset = msgspec.UNSET
+    time_s: _Wide | _Unset = msgspec.UNSET
+    every_frame: bool | _Unset = msgspec.UNSET
+    smoothing: Annotated[str, Meta(max_length=64)] | _Unset = msgspec.UNSET
+    smooth_alpha: _Wide | _Unset = msgspec.UNSET
+    euro_min_cutoff: _Wide | _Unset = msgspec.UNSET
+    euro_beta: _Wide | _Unset = msgspec.UNSET
+    baked: bool | _Unset = msgspec.UNSET
+    bake_budget_mb: _Wide | _Unset = msgspec.UNSET
+    bake_cache: bool | _Unset = msgspec.UNSET
+    head_pose: bool | _Unset = msgspec.UNSET
 
 
-def _apply_timeline(timeline: Timeline, value: object) -> None:
-    """Set `timeline`'s fields from a session's (each of its field's type; "playing" is not restored)."""
-    for k, v in _session_dict(value, "timeline").items():
-        if k in Timeline.__dataclass_fields__ and k != "playing":
-            current = getattr(timeline, k)
-            if isinstance(current, bool):
-                v = bool(v)
-            elif isinstance(current, float):
-                v = _session_number(v, f"timeline.{k}")
-            elif not isinstance(v, str) or len(v) > 64:
-                raise ValueError(f"timeline.{k} must be a short string")
-            setattr(timeline, k, v)
+class _Session(msgspec.Struct):
+    """A session file (`ViewerState.to_session`); unknown fields are ignored."""
+
+    npga_view_session: int
+    avatar: FilePath | None = None
+    sequence: FilePath | None = None
+    rig: FilePath | None = None
+    camera: _Camera = msgspec.field(default_factory=_Camera)
+    mode: Annotated[str, Meta(max_length=64)] = "rgb"
+    background: Annotated[list[Annotated[float, Meta(ge=0.0, le=1.0)]], Meta(max_length=16)] = msgspec.field(
+        default_factory=lambda: [0.0, 0.0, 0.0])
+    use_cnn: bool = True
+    sliders: Annotated[list[_Wide], Meta(max_length=4096)] = []
+    n_sliders: _Wide = 10
+    follow_sequence: bool = True
+    timeline: _Timeline | None = None
+    rig_index: Annotated[float, Meta(ge=-1, le=4096)] = -1
+
+
+def _given(struct: msgspec.Struct) -> dict:
+    """The fields a file gave (not UNSET) of a struct."""
+    return {k: v for k, v in msgspec.structs.asdict(struct).items() if v is not msgspec.UNSET}
+
+
+def _apply_timeline(timeline: Timeline, value: _Timeline | None) -> None:
+    """Set `timeline`'s fields from a session's ("playing" is not restored)."""
+    for k, v in ({} if value is None else _given(value)).items():
+        setattr(timeline, k, v)
     check_playback(timeline)  # settings smooth() or the bake would refuse later, in the frame loop
 
 
@@ -158,36 +183,23 @@ class ViewerState:
             "rig_index": self.rig_index,
         }
 
-    def apply_session(self, d: dict) -> None:
-        """Restore from `to_session` output; unknown keys are ignored, bad values raise ValueError."""
+    def apply_session(self, d: object) -> None:
+        """Restore from `to_session` output; unknown keys are ignored, bad values raise ValueError naming the
+        field (`decode`'s SchemaError)."""
         if not isinstance(d, dict) or d.get("npga_view_session") != SESSION_VERSION:
             raise ValueError("not an npga-view session file")
-        paths = {k: d.get(k) for k in ("avatar", "sequence", "rig")}
-        for k, v in paths.items():
-            if v is not None and not (isinstance(v, str) and 0 < len(v) < 4096 and "\0" not in v):
-                raise ValueError(f"'{k}' must be a file path or null")
-        self.avatar_path, self.sequence_path = paths["avatar"], paths["sequence"]
-        self.camera = _session_camera(d.get("camera", {}))
-        mode = d.get("mode", "rgb")
-        self.mode = mode if mode in RENDER_MODES else "rgb"
-        bg = d.get("background", [0, 0, 0])
-        if not isinstance(bg, list):
-            raise ValueError("background must be a list of 3 numbers")
-        bg = [_session_number(v, "background", 0.0, 1.0) for v in bg][:3]
-        self.background = (bg + [0.0] * 3)[:3]  # type: ignore[assignment]
-        self.use_cnn = bool(d.get("use_cnn", True))
-        sliders = d.get("sliders", [])
-        if not isinstance(sliders, list) or len(sliders) > 4096:
-            raise ValueError("sliders must be a list of at most 4096 numbers")
-        sl = np.asarray([_session_number(v, "sliders") for v in sliders], np.float32).reshape(-1)
-        if not np.all(np.isfinite(sl)):
-            raise ValueError("session sliders are not finite")
-        self.sliders = sl
-        self.n_sliders = int(np.clip(_session_number(d.get("n_sliders", 10), "n_sliders"), 1, MAX_SLIDERS))
-        self.follow_sequence = bool(d.get("follow_sequence", True))
-        _apply_timeline(self.timeline, d.get("timeline") or {})
-        self.rig_path = paths["rig"]
-        self.rig_index = int(_session_number(d.get("rig_index", -1), "rig_index", -1, 4096))
+        s: _Session = decode(d, _Session)
+        self.avatar_path, self.sequence_path, self.rig_path = s.avatar, s.sequence, s.rig
+        self.camera = OrbitCamera.from_dict(_given(s.camera))
+        self.mode = s.mode if s.mode in RENDER_MODES else "rgb"
+        r, g, b = (list(s.background) + [0.0] * 3)[:3]
+        self.background = (r, g, b)
+        self.use_cnn = s.use_cnn
+        self.sliders = np.asarray(s.sliders, np.float32).reshape(-1)
+        self.n_sliders = int(np.clip(s.n_sliders, 1, MAX_SLIDERS))
+        self.follow_sequence = s.follow_sequence
+        _apply_timeline(self.timeline, s.timeline)
+        self.rig_index = int(s.rig_index)
 
     def save_session(self, path: str | Path) -> None:
         text = json.dumps(self.to_session(), indent=1).encode()
@@ -230,6 +242,12 @@ class ViewerState:
             atomic_write(flame_model_file(), lambda fh: fh.write(text))
 
 
+class _FlameSetting(msgspec.Struct):
+    """The remembered FLAME model: ``{"flame_model": PATH}``."""
+
+    flame_model: FilePath | None = None
+
+
 def flame_model_file() -> Path:
     """Where the FLAME model last given (`--flame-model`, the Files panel) is remembered."""
     return config_dir() / "flame_model.json"
@@ -241,10 +259,7 @@ def read_flame_setting(path: str | Path) -> str | None:
         data = read_json(path, MAX_SESSION_BYTES, what="a FLAME model setting")
     except OSError as e:
         raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None
-    value = data.get("flame_model") if isinstance(data, dict) else ""
-    if value is not None and not (isinstance(value, str) and 0 < len(value) < 4096 and "\0" not in value):
-        raise AvatarFileError(path, 'expected {"flame_model": PATH}')
-    return value
+    return decode_file(data, _FlameSetting, path).flame_model
 
 
 def recent_file() -> Path:
@@ -257,6 +272,4 @@ def read_recent(path: str | Path) -> list[str]:
         data = read_json(path, MAX_SESSION_BYTES, what="a recent-files list")
     except OSError as e:
         raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None
-    if not isinstance(data, list):
-        raise AvatarFileError(path, "expected a list of paths")
-    return [p for p in data if isinstance(p, str) and 0 < len(p) < 4096 and "\0" not in p][:10]
+    return [p for p in decode_file(data, list[str], path) if 0 < len(p) < 4096 and "\0" not in p][:10]

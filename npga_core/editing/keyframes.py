@@ -27,14 +27,17 @@ import json
 import math
 from dataclasses import dataclass, field, replace
 from pathlib import Path
-from typing import Any
+from typing import Annotated, Any, Literal
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 from scipy.spatial.transform import Rotation, Slerp
 
 from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError, brief
 from npga_core.files.atomic import atomic_write
+from npga_core.files.rig import camera_of
 from npga_core.files.untrusted import (
     MAX_CODE,
     MAX_FRAMES,
@@ -44,6 +47,7 @@ from npga_core.files.untrusted import (
     MAX_TIME_S,
     read_json,
 )
+from npga_core.schema import Text, decode
 
 FORMAT_VERSION = 1
 INTERPOLATIONS = ("linear", "smooth")
@@ -337,58 +341,82 @@ def _check_key(key: Key) -> None:
         raise ValueError(f"interp {brief(key.interp)} is not one of {', '.join(INTERPOLATIONS)}")
 
 
-def _number(d: dict, name: str, where: str, default: float | None = None) -> float:
-    v = d.get(name, default)
-    if isinstance(v, bool) or not isinstance(v, int | float):
-        raise ValueError(f"{where}.{name} must be a number, got {type(v).__name__}")
-    return float(v)
+_Seconds = Annotated[float, Meta(ge=0.0, le=MAX_TIME_S)]
+_Ease = Annotated[float, Meta(ge=0.0, le=1.0)]
+_Code = Annotated[list[Annotated[float, Meta(ge=-MAX_CODE, le=MAX_CODE)]], Meta(min_length=1, max_length=65536)]
+
+
+class _Key(msgspec.Struct, kw_only=True):
+    """What every key of a file holds (unknown fields are ignored)."""
+
+    time: _Seconds
+    ease_in: _Ease = 0.0
+    ease_out: _Ease = 0.0
+    hold: _Seconds = 0.0
+    label: Text = ""
+
+
+class _ExpressionKey(_Key):
+    code: _Code
+    interp: Literal["linear", "smooth"] = "smooth"
+
+
+class _CameraKey(_Key):
+    camera: Any  # a `CameraFile`, decoded by `camera_of`
+
+
+class _File(msgspec.Struct):
+    """A keyframe file (`KeyframeTimeline.to_dict`)."""
+
+    npga_keyframes: int
+    code_dim: Annotated[int, Meta(ge=1, le=2**31 - 1)] | None = None
+    expression: Annotated[list[_ExpressionKey], Meta(max_length=MAX_KEYS)] = []
+    camera: Annotated[list[_CameraKey], Meta(max_length=MAX_KEYS)] = []
+
+
+def _common(k: _Key) -> dict[str, Any]:
+    return {"ease_in": k.ease_in, "ease_out": k.ease_out, "hold": k.hold, "label": k.label}
+
+
+def _distinct_times(track: str, keys: list[_ExpressionKey] | list[_CameraKey]) -> None:
+    """ValueError naming the later of two keys of a track closer than `SAME_TIME`."""
+    seen: list[float] = []
+    for j, k in enumerate(keys):
+        i = bisect.bisect_left(seen, k.time - SAME_TIME)
+        if i < len(seen) and abs(seen[i] - k.time) < SAME_TIME:
+            raise ValueError(f"{track}[{j}]: two {track} keys at time {k.time:g}")
+        bisect.insort(seen, k.time)
+
+
+def _add_camera(tl: KeyframeTimeline, c: _CameraKey) -> None:
+    cam = camera_of(c.camera, "camera")
+    if max(cam.width, cam.height) > MAX_IMAGE_SIDE:
+        raise ValueError(f"camera image {cam.width}x{cam.height} is larger than {MAX_IMAGE_SIDE} pixels on a side")
+    tl.add_camera(c.time, cam, **_common(c))
 
 
 def _parse(data: object) -> KeyframeTimeline:
+    """The timeline of a file's parsed JSON: its version, then `_File`'s schema, then each key added (ValueError
+    naming the field or the key)."""
     if not isinstance(data, dict) or "npga_keyframes" not in data:
         raise ValueError("not an npga-view keyframe file (no 'npga_keyframes' version)")
-    version = data["npga_keyframes"]
-    if version != FORMAT_VERSION:
-        raise ValueError(f"keyframe format version {brief(version)} is not supported (expected {FORMAT_VERSION})")
-    code_dim = data.get("code_dim")
-    if code_dim is not None and (isinstance(code_dim, bool) or not isinstance(code_dim, int) or code_dim < 1):
-        raise ValueError(f"code_dim must be a positive integer or null, got {brief(code_dim)}")
-    tl = KeyframeTimeline(code_dim=code_dim)
-    for track in TRACKS:
-        items = data.get(track, [])
-        if not isinstance(items, list):
-            raise ValueError(f"'{track}' must be a list of keys")
-        if len(items) > MAX_KEYS:
-            raise ValueError(f"'{track}' has {len(items)} keys, more than the {MAX_KEYS} allowed")
-        seen: list[float] = []
-        for j, item in enumerate(items):
-            where = f"{track}[{j}]"
-            if not isinstance(item, dict):
-                raise ValueError(f"{where} must be an object")
-            common: dict[str, Any] = {name: _number(item, name, where, 0.0) for name in ("ease_in", "ease_out", "hold")}
-            common["label"] = str(item.get("label", ""))
-            t = _number(item, "time", where)
-            i = bisect.bisect_left(seen, t - SAME_TIME)
-            if i < len(seen) and abs(seen[i] - t) < SAME_TIME:
-                raise ValueError(f"{where}: two {track} keys at time {t:g}")
-            bisect.insort(seen, t)
-            try:
-                if track == "expression":
-                    code = item.get("code")
-                    if not isinstance(code, list) or not code or any(
-                            isinstance(v, bool) or not isinstance(v, int | float) for v in code):
-                        raise ValueError("code must be a non-empty list of numbers")
-                    interp = item.get("interp", "smooth")
-                    tl.add_expression(t, np.asarray(code, np.float64), interp if isinstance(interp, str) else "?",
-                                      **common)
-                else:
-                    cam = Camera.from_dict(item.get("camera"), source="camera")
-                    if max(cam.width, cam.height) > MAX_IMAGE_SIDE:
-                        raise ValueError(f"camera image {cam.width}x{cam.height} is larger than "
-                                         f"{MAX_IMAGE_SIDE} pixels on a side")
-                    tl.add_camera(t, cam, **common)
-            except ValueError as e:
-                raise ValueError(f"{where}: {e}") from None
-    if code_dim is not None and tl.expression and tl.code_dim != code_dim:
-        raise ValueError(f"expression codes have {tl.code_dim} dims, code_dim says {code_dim}")
+    if data["npga_keyframes"] != FORMAT_VERSION:
+        raise ValueError(f"keyframe format version {brief(data['npga_keyframes'])} is not supported (expected "
+                         f"{FORMAT_VERSION})")
+    f: _File = decode(data, _File)
+    _distinct_times("expression", f.expression)
+    _distinct_times("camera", f.camera)
+    tl = KeyframeTimeline(code_dim=f.code_dim)
+    where = ""
+    try:
+        for j, e in enumerate(f.expression):
+            where = f"expression[{j}]"
+            tl.add_expression(e.time, np.asarray(e.code, np.float64), e.interp, **_common(e))
+        for j, c in enumerate(f.camera):
+            where = f"camera[{j}]"
+            _add_camera(tl, c)
+    except ValueError as err:
+        raise ValueError(f"{where}: {err}") from None
+    if f.code_dim is not None and tl.expression and tl.code_dim != f.code_dim:
+        raise ValueError(f"expression codes have {tl.code_dim} dims, code_dim says {f.code_dim}")
     return tl

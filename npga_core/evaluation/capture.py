@@ -9,8 +9,9 @@
   pixels of a 2048x2048 image: scaled to the file's own size, see GHA_ORIGINAL_RESOLUTION).
 
 A missing image, an unreadable file or a camera the rig lacks is one line in `problems`; the rest is evaluated.
-Images are PNG or JPEG regular files whose size is read from their headers before anything is decoded (at most
-`MAX_IMAGE_SIDE` a side: a few bytes of PNG can claim gigapixels); camera values are checked as `Camera` does.
+Images are PNG or JPEG regular files whose size is read from their headers (by Pillow) before anything is decoded
+(at most `MAX_IMAGE_SIDE` a side: a few bytes of PNG can claim gigapixels); camera values are checked as `Camera`
+does.
 """
 
 from __future__ import annotations
@@ -20,10 +21,10 @@ import re
 import sys
 import tempfile
 import threading
+import warnings
 from collections import OrderedDict
 from dataclasses import dataclass, field
 from pathlib import Path
-from typing import IO
 
 import numpy as np
 
@@ -31,7 +32,15 @@ from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError
 from npga_core.files.rig import load_rig
 from npga_core.files.sequences import ExpressionSequence
-from npga_core.files.untrusted import MAX_IMAGE_SIDE, check_pixels, open_regular, read_bytes, read_npz, real_floats
+from npga_core.files.untrusted import (
+    MAX_IMAGE_PIXELS,
+    MAX_IMAGE_SIDE,
+    check_pixels,
+    open_regular,
+    read_bytes,
+    read_npz,
+    real_floats,
+)
 
 _DECODE_LOCK = threading.Lock()  # one decode at a time owns descriptor 2
 #: Largest image file read (a 16384-pixel-a-side PNG of noise is ~800 MB; captures are far smaller)
@@ -105,50 +114,31 @@ class Capture:
 
 
 def image_size(path: Path) -> tuple[int, int]:
-    """(width, height) of a PNG or JPEG from its header, nothing decoded; AvatarFileError when the file is missing,
-    not a regular file, neither format, or more than `MAX_IMAGE_SIDE` pixels a side."""
+    """(width, height) of a PNG or JPEG from its header (read by Pillow, nothing decoded); AvatarFileError when the
+    file is missing, not a regular file, neither format, or more than `MAX_IMAGE_SIDE` pixels a side."""
+    from PIL import Image
+
     if not path.is_file():
         raise AvatarFileError(path, "missing (no such image file)")
     try:
-        with open_regular(path, "an image") as fh:
-            head = fh.read(24)
-            if head[:8] == b"\x89PNG\r\n\x1a\n" and head[12:16] == b"IHDR":
-                size: tuple[int, int] | None = int.from_bytes(head[16:20], "big"), int.from_bytes(head[20:24], "big")
-            elif head[:2] == b"\xff\xd8":
-                size = _jpeg_size(fh)
-            else:
-                raise AvatarFileError(path, "unreadable image (not a PNG or JPEG)")
-    except OSError as e:
-        raise AvatarFileError(path, f"cannot read: {e.strerror or e}") from None
-    if size is None or min(size) < 1:
+        with open_regular(path, "an image") as fh, warnings.catch_warnings():
+            warnings.simplefilter("ignore", Image.DecompressionBombWarning)  # sizes are bounded below
+            with Image.open(fh, formats=("PNG", "JPEG")) as im:
+                size: tuple[int, int] = im.size
+    except Image.DecompressionBombError as e:  # Pillow's own bound, far above ours
+        claimed = re.search(r"\((\d+) pixels\)", str(e))
+        count = f"{int(claimed.group(1)):,}" if claimed else "too many"
+        raise AvatarFileError(path, f"image of {count} pixels, more than the {MAX_IMAGE_PIXELS:,} allowed") from None
+    except Image.UnidentifiedImageError:
+        raise AvatarFileError(path, "unreadable image (not a PNG or JPEG, or its header is cut short)") from None
+    except (OSError, ValueError, SyntaxError) as e:
+        raise AvatarFileError(path, f"cannot read: {getattr(e, 'strerror', None) or e}") from None
+    if min(size) < 1:
         raise AvatarFileError(path, "unreadable image (no image size in its header)")
     if max(size) > MAX_IMAGE_SIDE:
         raise AvatarFileError(path, f"image of {size[0]}x{size[1]} pixels, more than {MAX_IMAGE_SIDE} a side")
     check_pixels(size[0], size[1], path)
     return size
-
-
-def _jpeg_size(fh: IO[bytes]) -> tuple[int, int] | None:
-    """The frame size of a JPEG's first start-of-frame segment (markers walked from the start, at most 4096)."""
-    fh.seek(2)
-    for _ in range(4096):
-        m = fh.read(2)
-        if len(m) < 2 or m[0] != 0xFF:
-            return None
-        marker = m[1]
-        if marker == 0xFF:  # fill byte
-            fh.seek(-1, 1)
-            continue
-        if marker in (0x01, 0xD8) or 0xD0 <= marker <= 0xD7:
-            continue
-        seg = fh.read(2)
-        if len(seg) < 2:
-            return None
-        if 0xC0 <= marker <= 0xCF and marker not in (0xC4, 0xC8, 0xCC):
-            d = fh.read(5)
-            return (int.from_bytes(d[3:5], "big"), int.from_bytes(d[1:3], "big")) if len(d) == 5 else None
-        fh.seek(int.from_bytes(seg, "big") - 2, 1)
-    return None
 
 
 def _decode_quietly(data: bytes) -> tuple[np.ndarray | None, str]:

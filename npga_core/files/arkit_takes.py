@@ -6,8 +6,9 @@
   fraction of a frame). The timecode's rate is the smallest common rate above every FF seen (`timecode_rate`);
   the take's own is its median row spacing snapped to whole timecode frames (`recorded_rate`: 30 on a 60 count). Head
   angles (radians) give the head pose; eye angles are kept; angle columns all zero mean "not recorded".
-- JSON: LAM Audio2Expression's ``{"names", "metadata": {"fps"}, "frames": [{"weights", "time"}]}`` (a
-  ``head_pose`` beside them, as in LAM_WebRender's example, is ignored and said so: `LAM_HEAD_POSE_IGNORED`);
+- JSON (declared and decoded in `npga_core.files.arkit_json`): LAM Audio2Expression's ``{"names", "metadata":
+  {"fps"}, "frames": [{"weights", "time"}]}`` (a ``head_pose`` beside them, as in LAM_WebRender's example, is
+  ignored and said so: `LAM_HEAD_POSE_IGNORED`);
   NVIDIA Audio2Face's blendshape export ``{"exportFps", "numPoses", "numFrames", "facsNames", "weightMat"}``
   (one row of ``numPoses`` weights per frame at ``exportFps``); ``{"names": [...], "values": [[...]]}``;
   MediaPipe face-landmarker category lists (per frame ``[{"categoryName"|"category_name", "score"}]``,
@@ -27,17 +28,18 @@ import csv
 import io
 import math
 import re
+from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from npga_core.errors import AvatarFileError, shown
+from npga_core.files.arkit_json import JSON_FPS, LAM_HEAD_POSE_IGNORED, json_take  # noqa: F401  (their home)
 from npga_core.files.atomic import atomic_write
 from npga_core.files.blendshape_names import ANGLE_NAMES, match_names
 from npga_core.files.sequences import ExpressionSequence
-from npga_core.files.untrusted import json_number, parse_json, read_bytes
+from npga_core.files.untrusted import parse_json, read_bytes
 from npga_core.model.blendshapes import BlendshapeBasis
 
 #: Largest take file read (a 52-shape take at 60 fps is ~0.6 kB a frame: an hour is ~130 MB; 64 MiB bounds the
@@ -51,18 +53,10 @@ MAX_RESAMPLED_VALUES = 1 << 26
 MAX_ANGLE = 1e3
 #: Common frame rates a Live Link Face timecode's frame field may count at.
 RATES = (24.0, 25.0, 30.0, 48.0, 50.0, 60.0, 100.0, 120.0, 240.0)
-JSON_FPS = 30.0
 #: Most timecode frames between a take's rows that still count as its recording rate (`recorded_rate`).
 MAX_STEP = 8
 TAKE_SUFFIXES = (".csv", ".json")
 HEAD_POSE = "ARKit head angles (radians): x_world = Ry(yaw) Rx(pitch) Rz(roll) x"
-#: LAM_WebRender's asset/test_expression_1s.json carries a `head_pose` (T x 3 small numbers) that no code of LAM's
-#: produces or reads: LAM_Audio2Expression returns ``"headpose": None`` (engines/infer.py line 233, models/utils.py
-#: line 136), LAM_WebRender's src/gaussianAvatar.ts (lines 53-66) reads only ``names`` and the frames' ``weights``
-#: and its player (gaussian-splat-renderer-for-lam 0.0.8) never mentions it; aigc3d/LAM and OpenAvatarChat do
-#: not either. Its axes, order and units are nowhere defined, so it is not guessed at.
-LAM_HEAD_POSE_IGNORED = ("head_pose ignored: no LAM code writes or reads it (Audio2Expression returns no head pose, "
-                         "the web player reads only the weights), so its axes and units are unknown")
 _TIMECODE = re.compile(r"^(\d{1,2}):(\d{2}):(\d{2})[:;](\d{1,3})(?:\.(\d{1,9}))?$")
 
 
@@ -185,44 +179,51 @@ def _angles(cols: dict[str, np.ndarray], names: tuple[str, ...], path: Path) -> 
 # ------------------------------------------------------------------------------------------ CSV
 
 
-def read_livelink_csv(path: str | Path) -> Take:
-    """A Live Link Face CSV take (columns by name)."""
-    path = Path(path)
-    text = _text(read_bytes(path, MAX_TAKE_BYTES, "a take file"), path)
-    rows = csv.reader(io.StringIO(text))
+def _csv_header(rows: Iterator[list[str]], path: Path) -> tuple[list[str], int, list[int]]:
+    """(the column names, the Timecode column, the value columns) of a Live Link Face CSV's first row."""
     try:
         header = [h.strip() for h in next(rows)]
     except StopIteration:
         raise AvatarFileError(path, "file is empty") from None
-    except csv.Error as e:
-        raise AvatarFileError(path, f"not a CSV file ({e})") from None
     low = [h.lower() for h in header]
     if "timecode" not in low:
         raise AvatarFileError(path, f"has no Timecode column (columns: {', '.join(header[:6])}...)")
     if len(header) > MAX_COLUMNS or len(set(low)) != len(low):
         raise AvatarFileError(path, f"has {len(header)} columns with repeated or too many names")
-    tc = low.index("timecode")
-    value_cols = [i for i, h in enumerate(low) if h not in ("timecode", "blendshapecount")]
+    return header, low.index("timecode"), [i for i, h in enumerate(low) if h not in ("timecode", "blendshapecount")]
+
+
+def _csv_rows(rows: Iterator[list[str]], width: int, tc: int, value_cols: list[int],
+              path: Path) -> tuple[list[str], np.ndarray]:
+    """(the timecodes, the values (T, columns)) of a Live Link Face CSV's rows (blank rows skipped)."""
     codes: list[str] = []
     values: list[np.ndarray] = []
-    try:
-        for r, row in enumerate(rows, start=2):
-            if not row or all(not c.strip() for c in row):
-                continue
-            if len(row) != len(header):
-                raise AvatarFileError(path, f"line {r} has {len(row)} fields, the header {len(header)}")
-            if len(values) >= MAX_FRAMES:
-                raise AvatarFileError(path, f"has more than {MAX_FRAMES} frames")
-            codes.append(row[tc])
-            try:
-                values.append(np.array([float(row[i]) for i in value_cols], np.float64))
-            except ValueError:
-                raise AvatarFileError(path, f"line {r} has a value that is not a number") from None
-    except csv.Error as e:
-        raise AvatarFileError(path, f"not a CSV file ({e})") from None
+    for r, row in enumerate(rows, start=2):
+        if not row or all(not c.strip() for c in row):
+            continue
+        if len(row) != width:
+            raise AvatarFileError(path, f"line {r} has {len(row)} fields, the header {width}")
+        if len(values) >= MAX_FRAMES:
+            raise AvatarFileError(path, f"has more than {MAX_FRAMES} frames")
+        codes.append(row[tc])
+        try:
+            values.append(np.array([float(row[i]) for i in value_cols], np.float64))
+        except ValueError:
+            raise AvatarFileError(path, f"line {r} has a value that is not a number") from None
     if not values:
         raise AvatarFileError(path, "has no frames")
-    table = np.stack(values).reshape(len(values), len(value_cols))
+    return codes, np.stack(values).reshape(len(values), len(value_cols))
+
+
+def read_livelink_csv(path: str | Path) -> Take:
+    """A Live Link Face CSV take (columns by name)."""
+    path = Path(path)
+    rows = csv.reader(io.StringIO(_text(read_bytes(path, MAX_TAKE_BYTES, "a take file"), path)))
+    try:
+        header, tc, value_cols = _csv_header(rows, path)
+        codes, table = _csv_rows(rows, len(header), tc, value_cols, path)
+    except csv.Error as e:
+        raise AvatarFileError(path, f"not a CSV file ({e})") from None
     if not np.isfinite(table).all():
         r, c = np.argwhere(~np.isfinite(table))[0]
         raise AvatarFileError(path, f"column {header[value_cols[c]]} of frame {int(r)} is NaN/Inf")
@@ -266,152 +267,11 @@ def _text(data: bytes, path: Path) -> str:
 # ------------------------------------------------------------------------------------------ JSON
 
 
-def _number(v: Any, path: Path, what: str) -> float:
-    return json_number(v, path, what, -1e6, 1e6)
-
-
-def _category_frame(frame: Any, path: Path, i: int) -> tuple[dict[str, float], float | None]:
-    """({name: score}, time in seconds or None) of one MediaPipe frame."""
-    stamp = None
-    if isinstance(frame, dict):
-        for k, scale in (("timestampMs", 1e-3), ("timestamp_ms", 1e-3), ("time", 1.0), ("timestamp", 1.0)):
-            if k in frame:
-                stamp = _number(frame[k], path, f"frame {i} {k}") * scale
-                break
-        if "faceBlendshapes" in frame or "face_blendshapes" in frame:
-            faces = frame.get("faceBlendshapes", frame.get("face_blendshapes"))
-            if not isinstance(faces, list) or not faces:
-                raise AvatarFileError(path, f"frame {i} has no face")
-            frame = faces[0]
-        if isinstance(frame, dict):
-            frame = frame.get("categories")
-    if not isinstance(frame, list):
-        raise AvatarFileError(path, f"frame {i} is no list of blendshape categories")
-    out: dict[str, float] = {}
-    for c in frame:
-        if not isinstance(c, dict):
-            raise AvatarFileError(path, f"frame {i} has a category that is no object")
-        name = c.get("categoryName", c.get("category_name"))
-        if not isinstance(name, str) or not name or len(name) > 128:
-            raise AvatarFileError(path, f"frame {i} has a category without a name")
-        out[name] = _number(c.get("score"), path, f"frame {i} {name} score")
-    return out, stamp
-
-
-_Layout = tuple[list[str], np.ndarray, np.ndarray | None, float]
-
-
-def _json_fps(data: Any, path: Path) -> float:
-    """The frame rate a JSON take states (LAM's metadata.fps, Audio2Face's exportFps, a plain fps), else 30."""
-    if isinstance(data, dict):
-        meta = data.get("metadata")
-        if isinstance(meta, dict) and "fps" in meta:
-            return json_number(meta["fps"], path, "metadata.fps", 1e-3, 1000)
-        for key in ("exportFps", "fps"):
-            if key in data:
-                return json_number(data[key], path, key, 1e-3, 1000)
-    return JSON_FPS
-
-
-def _names(v: Any, path: Path, key: str) -> list[str]:
-    if not isinstance(v, list) or not all(isinstance(n, str) and 0 < len(n) <= 128 for n in v):
-        raise AvatarFileError(path, f"{key} must be a list of blendshape names")
-    return list(v)
-
-
-def _rows(rows: Any, width: int, path: Path, key: str) -> np.ndarray:
-    """(T, width) numbers of a list of rows of `width` numbers."""
-    if not isinstance(rows, list):
-        raise AvatarFileError(path, f"{key} must be a list of rows")
-    out = []
-    for i, r in enumerate(rows):
-        if not isinstance(r, list) or len(r) != width:
-            raise AvatarFileError(path, f"{key} row {i} must have {width} values")
-        out.append([_number(v, path, f"{key} row {i} value") for v in r])
-    return np.array(out, np.float64).reshape(len(out), width)
-
-
-def _lam_layout(data: dict, path: Path, fps: float) -> _Layout:
-    """LAM Audio2Expression: ``{"names", "metadata": {"fps"}, "frames": [{"weights", "time"}]}``."""
-    names, frames = _names(data["names"], path, "names"), data["frames"]
-    if not isinstance(frames, list):
-        raise AvatarFileError(path, "frames must be a list")
-    w = _rows([f.get("weights") if isinstance(f, dict) else None for f in frames], len(names), path, "weights")
-    times = [_number(f["time"], path, f"frame {i} time") for i, f in enumerate(frames) if "time" in f]
-    return names, w, np.array(times, np.float64) if frames and len(times) == len(frames) else None, fps
-
-
-def _keyed_frames(frames: list, path: Path, fps: float) -> _Layout:
-    """``[{"time": t, "blendshapes": {name: value}}]``: one object per frame, weights by name."""
-    names = list(frames[0]["blendshapes"]) if isinstance(frames[0].get("blendshapes"), dict) else []
-    names = _names(names, path, "blendshapes")
-    rows, times = [], []
-    for i, f in enumerate(frames):
-        b = f.get("blendshapes") if isinstance(f, dict) else None
-        if not isinstance(b, dict) or set(b) != set(names):
-            raise AvatarFileError(path, f"frame {i} must name the same {len(names)} blendshapes as frame 0")
-        rows.append([_number(b[n], path, f"frame {i} {n}") for n in names])
-        if "time" in f:
-            times.append(_number(f["time"], path, f"frame {i} time"))
-    t = np.array(times, np.float64) if len(times) == len(frames) else None
-    return names, np.array(rows, np.float64).reshape(len(rows), len(names)), t, fps
-
-
-def _category_frames(frames: list, path: Path, fps: float) -> _Layout:
-    """MediaPipe face-landmarker results: per frame a list of categories (or a result object holding them)."""
-    parsed = [_category_frame(f, path, i) for i, f in enumerate(frames)]
-    names = list(dict.fromkeys(n for d, _ in parsed for n in d))
-    if parsed and any(set(d) != set(names) for d, _ in parsed):
-        raise AvatarFileError(path, "frames name different blendshape categories")
-    w = np.array([[d[n] for n in names] for d, _ in parsed], np.float64).reshape(len(parsed), len(names))
-    stamps = [st for _, st in parsed]
-    t = np.array(stamps, np.float64) if parsed and all(st is not None for st in stamps) else None
-    return names, w, t, fps
-
-
-def _series(data: dict, path: Path, fps: float) -> _Layout:
-    """A plain ``{name: [values], "fps": rate}``."""
-    series = {k: v for k, v in data.items() if k not in ("fps", "metadata")}
-    if not series or not all(isinstance(v, list) for v in series.values()):
-        raise AvatarFileError(path, "is no ARKit take (expected LAM's names/frames, Audio2Face's facsNames/weightMat, "
-                              "names/values, MediaPipe category lists, [{time, blendshapes}] or {name: [values]})")
-    lengths = {len(v) for v in series.values()}
-    if len(lengths) != 1:
-        raise AvatarFileError(path, f"blendshape series have different lengths {sorted(lengths)[:4]}")
-    names = list(series)
-    w = np.array([[_number(x, path, f"{n} value") for x in series[n]] for n in names], np.float64).T
-    return names, w.reshape(lengths.pop(), len(names)), None, fps
-
-
-def _json_take(data: Any, path: Path) -> _Layout:
-    """(names, weights (T, B), times or None, fps) of any of the JSON layouts (see the module docstring)."""
-    fps = _json_fps(data, path)
-    if isinstance(data, dict):
-        if "names" in data and "frames" in data:  # LAM Audio2Expression
-            return _lam_layout(data, path, fps)
-        if "facsNames" in data and "weightMat" in data:  # NVIDIA Audio2Face's blendshape export
-            names = _names(data["facsNames"], path, "facsNames")
-            return names, _rows(data["weightMat"], len(names), path, "weightMat"), None, fps
-        if "names" in data and "values" in data:  # names and a (T, B) table
-            names = _names(data["names"], path, "names")
-            return names, _rows(data["values"], len(names), path, "values"), None, fps
-        if "faceBlendshapes" in data or "face_blendshapes" in data:  # one MediaPipe FaceLandmarkerResult
-            return _category_frames([data], path, fps)
-    frames = data.get("frames") if isinstance(data, dict) and isinstance(data.get("frames"), list) else data
-    if isinstance(frames, list) and frames and isinstance(frames[0], dict) and "blendshapes" in frames[0]:
-        return _keyed_frames(frames, path, fps)
-    if isinstance(frames, list):
-        return _category_frames(frames, path, fps)
-    if isinstance(data, dict):
-        return _series(data, path, fps)
-    raise AvatarFileError(path, f"is no ARKit take (top level is {type(data).__name__})")
-
-
 def read_arkit_json(path: str | Path) -> Take:
     """An ARKit JSON take in any of the layouts above."""
     path = Path(path)
     data = parse_json(read_bytes(path, MAX_TAKE_BYTES, "a take file"), path)
-    names, w, t, fps = _json_take(data, path)
+    names, w, t, fps, ignored = json_take(data, path)
     if len(w) == 0 or not names:
         raise AvatarFileError(path, "has no frames")
     if len(w) > MAX_FRAMES or len(names) > MAX_COLUMNS:
@@ -419,10 +279,8 @@ def read_arkit_json(path: str | Path) -> Take:
     if len(set(names)) != len(names):
         raise AvatarFileError(path, "repeats a blendshape name")
     times = np.arange(len(w), dtype=np.float64) / fps if t is None else t - t[0]
-    take = Take(_checked_weights(w, path), tuple(names), _checked_times(times, path), fps, name=path.stem)
-    if isinstance(data, dict) and "names" in data and "frames" in data and "head_pose" in data:
-        take.ignored = LAM_HEAD_POSE_IGNORED
-    return take
+    return Take(_checked_weights(w, path), tuple(names), _checked_times(times, path), fps, name=path.stem,
+                ignored=ignored)
 
 
 def read_take(path: str | Path) -> Take:

@@ -9,11 +9,14 @@ weights) and that D fits the avatar's code. Kept apart from `checkpoint.py`, whi
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from npga_core.model.blendshapes import HEADER_KEY, MATRIX_KEY, OFFSET_KEY, BlendshapeBasis
+from npga_core.schema import decode
 
 #: The oldest format version that holds a blendshape basis.
 BLENDSHAPES_VERSION = 3
@@ -23,23 +26,20 @@ MAX_SOURCE = 4096
 MAX_DIM = 65536
 
 
+class Section(msgspec.Struct):
+    """The header's ``blendshapes`` entry, declared."""
+
+    names: Annotated[list[Annotated[str, Meta(min_length=1, max_length=MAX_NAME)]],
+                     Meta(min_length=1, max_length=MAX_SHAPES)]
+    dim: Annotated[int, Meta(ge=1, le=MAX_DIM)]
+    source: Annotated[str, Meta(max_length=MAX_SOURCE)] = ""
+
+
 def check_section(entry: Any) -> None:
-    """ValueError unless `entry` (the header's ``blendshapes``, not null) is well formed."""
-    if not isinstance(entry, dict):
-        raise ValueError("blendshapes must be an object or null")
-    names = entry.get("names")
-    if not isinstance(names, list) or not 1 <= len(names) <= MAX_SHAPES:
-        raise ValueError(f"blendshapes.names must be a list of 1..{MAX_SHAPES} names")
-    if not all(isinstance(n, str) and 0 < len(n) <= MAX_NAME for n in names):
-        raise ValueError(f"blendshapes.names must be non-empty strings of at most {MAX_NAME} characters")
+    """ValueError (naming the field) unless `entry` (the header's ``blendshapes``, not null) is well formed."""
+    names = decode(entry, Section, "blendshapes").names
     if len(set(names)) != len(names):
         raise ValueError("blendshapes.names has duplicate names")
-    dim = entry.get("dim")
-    if isinstance(dim, bool) or not isinstance(dim, int) or not 1 <= dim <= MAX_DIM:
-        raise ValueError(f"blendshapes.dim must be an integer in 1..{MAX_DIM}, got {dim!r}")
-    source = entry.get("source", "")
-    if not isinstance(source, str) or len(source) > MAX_SOURCE:
-        raise ValueError(f"blendshapes.source must be a string of at most {MAX_SOURCE} characters")
 
 
 def tensors(entry: dict) -> dict[str, tuple[str, tuple[int, ...]]]:
@@ -80,8 +80,7 @@ def fits(d: int, code_dim: int, condition_dim: int) -> None:
 def header_entry(header: dict) -> Any:
     """The header's ``blendshapes`` entry; None when absent, null or empty, or in a file older than version 3
     (where the key has no meaning and is ignored like any unknown key)."""
-    version = header.get("format_version", 1)
-    if isinstance(version, bool) or not isinstance(version, int) or version < BLENDSHAPES_VERSION:
+    if header.get("format_version", 1) < BLENDSHAPES_VERSION:  # (an integer: checked before)
         return None
     entry = header.get(HEADER_KEY)
     return entry if entry not in (None, {}) else None

@@ -18,12 +18,14 @@ import datetime as _dt
 import json
 import math
 from pathlib import Path
-from typing import IO, Any
+from typing import IO, Annotated, Any
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from npga_core import __version__
-from npga_core.errors import AvatarFileError
+from npga_core.errors import AvatarFileError, brief
 from npga_core.files import blendshapes_field, rig_field
 from npga_core.files.atomic import atomic_write
 from npga_core.files.dynamics_header import (
@@ -42,6 +44,7 @@ from npga_core.model.cnn import CNNConfig
 from npga_core.model.dynamics import Dynamics
 from npga_core.model.expression import ExpressionSpace
 from npga_core.model.gaussians import GaussianCloud, sh_coeff_count
+from npga_core.schema import SchemaError, Text, decode
 
 MAGIC = b"\x89NPGA\r\n\x1a"
 #: The newest version this code reads and writes; a file is written in the oldest version that holds it.
@@ -52,6 +55,41 @@ MAX_PARAMETER = 1e8  # largest magnitude of a network weight, input normalisatio
 _DTYPES: dict[str, np.dtype] = {"float32": np.dtype("<f4"), "int16": np.dtype("<i2"), "int32": np.dtype("<i4")}
 
 Spec = dict[str, tuple[str, tuple[int, ...]]]
+
+
+# The header, declared (msgspec; unknown fields are ignored; sections checked by their own modules' schemas).
+class _Gaussians(msgspec.Struct):
+    count: Annotated[int, Meta(ge=0, le=2**31 - 1)]
+    sh_degree: Annotated[int, Meta(ge=0, le=3)]
+    feature_dim: Annotated[int, Meta(ge=0, le=4096)]
+    latent_dim: Annotated[int, Meta(ge=0, le=4096)]
+    part_names: Annotated[list[str], Meta(max_length=32767)] = []
+    blend_names: Annotated[list[str], Meta(max_length=16)] = []
+
+
+class _Expression(msgspec.Struct):
+    dim: Annotated[int, Meta(ge=1, le=65536)]
+    n_components: Annotated[int, Meta(ge=0, le=65536)]
+    named: list[str] = []
+
+
+class _TensorEntry(msgspec.Struct):
+    dtype: Annotated[str, Meta(max_length=16)]
+    shape: Annotated[list[Annotated[int, Meta(ge=0, le=2**62)]], Meta(max_length=8)]
+    offset: Annotated[int, Meta(ge=0, le=2**62)]
+    nbytes: Annotated[int, Meta(ge=0, le=2**62)]
+
+
+class _Header(msgspec.Struct):
+    format_version: int
+    gaussians: _Gaussians
+    tensors: dict[str, Any]  # each a `_TensorEntry`
+    units: Text = "m"
+    dynamics: dict[str, Any] | None = None
+    cnn: dict[str, Any] | None = None
+    expression: dict[str, Any] | None = None  # an `_Expression` (or empty: none)
+    provenance: dict[str, Any] | None = None
+    data_nbytes: Annotated[int, Meta(ge=0, le=2**62)] | None = None
 
 
 def _align(n: int) -> int:
@@ -243,15 +281,6 @@ class _Invalid(Exception):
     """A problem found while validating; turned into AvatarFileError with the path."""
 
 
-def _int(d: dict, key: str, where: str, lo: int = 0, hi: int = 2**40) -> int:
-    v = d.get(key)
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise _Invalid(f"{where}.{key} must be an integer, got {type(v).__name__}")
-    if not lo <= v <= hi:
-        raise _Invalid(f"{where}.{key} = {v} is outside {lo}..{hi}")
-    return v
-
-
 def read_header(path: str | Path) -> tuple[dict, int]:
     """Read and check the header; returns (header, data_start). Raises AvatarFileError."""
     path = Path(path)
@@ -310,42 +339,41 @@ def _header_length(fh: IO[bytes], size: int) -> int:
 def _check_version(header: Any) -> None:
     if not isinstance(header, dict) or header.get("format") != "npga":
         raise _Invalid("header does not declare format 'npga'")
-    version = header.get("format_version")
-    if isinstance(version, bool) or not isinstance(version, int):
-        raise _Invalid(f"format_version must be an integer, got {version!r}")
+    version = _decoded(header.get("format_version"), Annotated[int, Meta(ge=1)], "format_version")
     if version > FORMAT_VERSION:
         raise _Invalid(f"format version {version} is newer than this reader supports ({FORMAT_VERSION}); "
                        "update npga-view")
-    if version < 1:
-        raise _Invalid(f"format version {version} is not valid")
+
+
+def _decoded(value: Any, schema: Any, where: str) -> Any:
+    try:
+        return decode(value, schema, where)
+    except SchemaError as e:
+        raise _Invalid(str(e)) from None
 
 
 def _check_header_schema(header: dict) -> None:
-    g = header.get("gaussians")
-    if not isinstance(g, dict):
-        raise _Invalid("header has no 'gaussians' object")
-    _check_gaussians(g)
-    if not isinstance(header.get("units", "m"), str):
-        raise _Invalid("units must be a string")
-    for key in ("dynamics", "cnn", "expression", "provenance"):
-        if header.get(key) is not None and not isinstance(header[key], dict):
-            raise _Invalid(f"header.{key} must be an object or null")
-    dyn = header.get("dynamics")
-    if dyn:
+    h: _Header = _decoded(header, _Header, "")
+    for what, names in (("gaussians.part_names", h.gaussians.part_names),
+                        ("gaussians.blend_names", h.gaussians.blend_names)):
+        if len(set(names)) != len(names):
+            raise _Invalid(f"{what} has duplicate names")
+    if h.dynamics:
         try:
-            check_dynamics(dyn, header["format_version"])
+            check_dynamics(h.dynamics, h.format_version)
         except HeaderError as e:
             raise _Invalid(str(e)) from None
-    if header.get("cnn"):
+    if h.cnn:
         try:
-            CNNConfig.from_json(header["cnn"])
+            CNNConfig.from_json(h.cnn)
         except ValueError as e:
-            raise _Invalid(f"cnn: {e}") from None
-    ex = header.get("expression")
-    if ex:
-        _check_expression(ex)
-    if not isinstance(header.get("tensors"), dict):
-        raise _Invalid("header has no 'tensors' table")
+            raise _Invalid(str(e)) from None
+    if h.expression:
+        ex: _Expression = _decoded(h.expression, _Expression, "expression")
+        if len(set(ex.named)) != len(ex.named):
+            raise _Invalid("expression.named has duplicate names")
+    for name, entry in h.tensors.items():
+        _decoded(entry, _TensorEntry, f"tensors[{brief(name)}]")
 
 
 def _check_blendshapes(header: dict) -> None:
@@ -369,32 +397,6 @@ def _blendshapes_of(header: dict, t: dict[str, np.ndarray], dynamics: Dynamics |
         raise _Invalid(f"blendshapes: {e}") from None
 
 
-def _check_gaussians(g: dict) -> None:
-    _int(g, "count", "gaussians", 0, 2**31 - 1)
-    _int(g, "sh_degree", "gaussians", 0, 3)
-    _int(g, "feature_dim", "gaussians", 0, 4096)
-    _int(g, "latent_dim", "gaussians", 0, 4096)
-    parts = g.get("part_names", [])
-    if not isinstance(parts, list) or not all(isinstance(p, str) for p in parts) or len(parts) > 32767:
-        raise _Invalid("gaussians.part_names must be a list of strings")
-    if len(set(parts)) != len(parts):
-        raise _Invalid("gaussians.part_names has duplicate names")
-    blends = g.get("blend_names", [])
-    if (not isinstance(blends, list) or not all(isinstance(p, str) for p in blends) or len(blends) > 16
-            or len(set(blends)) != len(blends)):
-        raise _Invalid("gaussians.blend_names must be a list of at most 16 distinct strings")
-
-
-def _check_expression(ex: dict) -> None:
-    _int(ex, "dim", "expression", 1, 65536)
-    _int(ex, "n_components", "expression", 0, 65536)
-    named = ex.get("named", [])
-    if not isinstance(named, list) or not all(isinstance(p, str) for p in named):
-        raise _Invalid("expression.named must be a list of strings")
-    if len(set(named)) != len(named):
-        raise _Invalid("expression.named has duplicate names")
-
-
 def _map_tensors(path: Path, header: dict, data_start: int) -> dict[str, np.ndarray]:
     spec = expected_tensors(header)
     table = header["tensors"]
@@ -414,10 +416,9 @@ def _map_tensors(path: Path, header: dict, data_start: int) -> dict[str, np.ndar
         end_needed = max(end_needed, data_start + off + nbytes)
     if end_needed > size:
         raise _Invalid(f"truncated: data needs {end_needed} bytes, the file has {size}")
-    if "data_nbytes" in header:
-        declared = _int(header, "data_nbytes", "header", 0, 2**62)
-        if data_start + declared > size:
-            raise _Invalid(f"truncated: the data section is {declared} bytes, the file has {size - data_start}")
+    declared = header.get("data_nbytes")
+    if declared is not None and data_start + declared > size:
+        raise _Invalid(f"truncated: the data section is {declared} bytes, the file has {size - data_start}")
     spans = sorted((off, off + nb, n) for n, (_, _, off, nb) in entries.items() if nb)
     for (_, e0, n0), (s1, _, n1) in zip(spans, spans[1:], strict=False):
         if s1 < e0:
@@ -430,24 +431,19 @@ def _map_tensors(path: Path, header: dict, data_start: int) -> dict[str, np.ndar
 
 
 def _table_entry(e: Any, name: str, dt: str, shape: tuple[int, ...]) -> tuple[int, int]:
-    """(offset, nbytes) of one tensor table entry, checked against the dtype and shape the header implies."""
-    if not isinstance(e, dict):
-        raise _Invalid(f"tensor table entry {name} is not an object")
-    if e.get("dtype") != dt:
-        raise _Invalid(f"{name} has dtype {e.get('dtype')!r}, expected {dt}")
-    shp = e.get("shape")
-    if not isinstance(shp, list) or any(isinstance(s, bool) or not isinstance(s, int) for s in shp):
-        raise _Invalid(f"{name} has a malformed shape {shp!r}")
-    if tuple(shp) != shape:
-        raise _Invalid(f"{name} has shape {tuple(shp)}, the header implies {shape}")
-    off = _int(e, "offset", name, 0, 2**62)
-    nbytes = _int(e, "nbytes", name, 0, 2**62)
+    """(offset, nbytes) of one tensor table entry (declared by `_TensorEntry`, checked with the header), checked
+    against the dtype and shape the header implies."""
+    entry: _TensorEntry = _decoded(e, _TensorEntry, f"tensors[{brief(name)}]")
+    if entry.dtype != dt:
+        raise _Invalid(f"{name} has dtype {brief(entry.dtype)}, expected {dt}")
+    if tuple(entry.shape) != shape:
+        raise _Invalid(f"{name} has shape {tuple(entry.shape)}, the header implies {shape}")
     want = math.prod(shape) * _DTYPES[dt].itemsize
-    if nbytes != want:
-        raise _Invalid(f"{name} declares {nbytes} bytes, its shape needs {want}")
-    if off % ALIGN:
-        raise _Invalid(f"{name} offset {off} is not aligned to {ALIGN}")
-    return off, nbytes
+    if entry.nbytes != want:
+        raise _Invalid(f"{name} declares {entry.nbytes} bytes, its shape needs {want}")
+    if entry.offset % ALIGN:
+        raise _Invalid(f"{name} offset {entry.offset} is not aligned to {ALIGN}")
+    return entry.offset, entry.nbytes
 
 
 def _read_data(path: Path, start: int, nbytes: int) -> np.ndarray:
@@ -535,7 +531,7 @@ def _build_avatar(path: Path, header: dict, t: dict[str, np.ndarray]) -> Avatar:
         try:
             CNNConfig.from_json(header["cnn"]).validate(cloud.latent_dim)
         except ValueError as e:
-            raise _Invalid(f"cnn: {e}") from None
+            raise _Invalid(str(e) if str(e).startswith("cnn") else f"cnn: {e}") from None
         cnn = build_cnn(header["cnn"], t)
     expression = None
     ex = header.get("expression")

@@ -9,14 +9,19 @@ each with its inputs, activations, skips, routes and blend weight, plus the attr
 from __future__ import annotations
 
 import re
-from typing import Any
+from typing import Annotated, Any, Literal, TypeVar
 
+import msgspec
 import numpy as np
 import torch
+from msgspec import Meta
 
+from npga_core.errors import brief
 from npga_core.model.cnn import CNNConfig, ScreenCNN
 from npga_core.model.dynamics import RULES, ConditionedMLP, Dynamics, MLPConfig
+from npga_core.schema import SchemaError, Text, decode
 
+T = TypeVar("T")
 MAX_NETWORKS = 16
 NAME = re.compile(r"[A-Za-z][A-Za-z0-9_]{0,31}")
 #: Bound on the multiply-adds per Gaussian of all networks together (GHA's default sizes need about 0.9e6).
@@ -27,28 +32,46 @@ class HeaderError(ValueError):
     """A problem with the dynamics or CNN sections of a header."""
 
 
+class _DynamicsV1(msgspec.Struct):
+    """Format version 1: NPGA's F and G (each an `MLPConfig` description) and how rotations compose."""
+
+    F: dict[str, Any] | None = None
+    G: dict[str, Any] | None = None
+    rotation_op: Literal["compose", "add"] = "compose"
+
+
+class _DynamicsV2(msgspec.Struct):
+    """Format version 2: named networks in evaluation order, attribute rules, the condition, blend notes."""
+
+    networks: Annotated[dict[Annotated[str, Meta(pattern=f"^{NAME.pattern}$")], dict[str, Any]],
+                        Meta(min_length=1, max_length=MAX_NETWORKS)]
+    rules: dict[str, str] = {}
+    condition: dict[str, Any] | None = None
+    blend: dict[str, Text] = {}
+
+
+def _section(dyn: object, schema: type[T]) -> T:
+    """The decoded `dynamics` section (HeaderError naming the field)."""
+    try:
+        return decode(dyn, schema, "dynamics")
+    except SchemaError as e:
+        raise HeaderError(str(e)) from None
+
+
 def network_configs(dyn: dict, version: int) -> dict[str, MLPConfig]:
     """Name -> architecture of every network of a `dynamics` section (HeaderError if malformed)."""
     if version == 1:
-        raw: Any = {k: dyn.get(k) for k in ("F", "G") if dyn.get(k) is not None}
+        v1 = _section(dyn, _DynamicsV1)
+        raw = {k: c for k, c in (("F", v1.F), ("G", v1.G)) if c is not None}
         if not raw:
             raise HeaderError("dynamics has neither F nor G")
+        where = "dynamics.{}"
     else:
-        raw = dyn.get("networks")
-        if not isinstance(raw, dict) or not raw:
-            raise HeaderError("dynamics.networks must be a non-empty object")
-        if len(raw) > MAX_NETWORKS:
-            raise HeaderError(f"dynamics has {len(raw)} networks (at most {MAX_NETWORKS})")
-    out = {}
-    for key, cfg in raw.items():
-        if not isinstance(key, str) or not NAME.fullmatch(key):
-            raise HeaderError(f"network name {key!r} is not a short identifier")
-        if not isinstance(cfg, dict):
-            raise HeaderError(f"dynamics.{key} must be an object")
-        try:
-            out[key] = MLPConfig.from_json(cfg)
-        except ValueError as e:
-            raise HeaderError(f"dynamics.{key}: {e}") from None
+        raw, where = _section(dyn, _DynamicsV2).networks, "dynamics.networks.{}"
+    try:
+        out = {key: MLPConfig.from_json(cfg, where.format(key)) for key, cfg in raw.items()}
+    except ValueError as e:
+        raise HeaderError(str(e)) from None
     if version == 1 and "F" in out and [n for n, _ in out["F"].outputs] != ["position"]:
         raise HeaderError("dynamics.F must output exactly the 'position' block")
     macs = sum(c.flops_per_gaussian() / 2 for c in out.values())
@@ -61,16 +84,11 @@ def network_configs(dyn: dict, version: int) -> dict[str, MLPConfig]:
 def rules_of(dyn: dict, version: int) -> dict[str, str]:
     """The attribute composition rules of a `dynamics` section."""
     if version == 1:
-        op = dyn.get("rotation_op", "compose")
-        if op not in ("compose", "add"):
-            raise HeaderError(f"dynamics.rotation_op {op!r} is not 'compose' or 'add'")
-        return {"rotation": op}
-    rules = dyn.get("rules", {})
-    if not isinstance(rules, dict):
-        raise HeaderError("dynamics.rules must be an object")
+        return {"rotation": _section(dyn, _DynamicsV1).rotation_op}
+    rules = _section(dyn, _DynamicsV2).rules
     for a, r in rules.items():
         if a not in RULES or r not in RULES[a]:
-            raise HeaderError(f"dynamics.rules: {a!r} -> {r!r} is not a known attribute rule")
+            raise HeaderError(f"dynamics.rules: {brief(a)} -> {brief(r)} is not a known attribute rule")
     return dict(rules)
 
 
@@ -78,15 +96,8 @@ def check_dynamics(dyn: dict, version: int) -> None:
     """Check a `dynamics` section as far as the header alone allows (HeaderError)."""
     configs = network_configs(dyn, version)
     rules_of(dyn, version)
-    if version >= 2:
-        cond = dyn.get("condition")
-        if cond is not None and not isinstance(cond, dict):
-            raise HeaderError("dynamics.condition must be an object or null")
-        blend = dyn.get("blend", {})
-        if not isinstance(blend, dict) or not all(isinstance(v, str) for v in blend.values()):
-            raise HeaderError("dynamics.blend must map blend names to descriptions")
-        if any(c.condition_dim for c in configs.values()) and not cond:
-            raise HeaderError("the networks take a condition, but dynamics.condition does not describe it")
+    if version >= 2 and any(c.condition_dim for c in configs.values()) and not _section(dyn, _DynamicsV2).condition:
+        raise HeaderError("the networks take a condition, but dynamics.condition does not describe it")
 
 
 def dynamics_tensors(dyn: dict, version: int) -> dict[str, tuple[str, tuple[int, ...]]]:

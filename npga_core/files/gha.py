@@ -24,17 +24,18 @@ The super-resolution network (lib/network/Upsampler.py) becomes a version-2 CNN 
 
 from __future__ import annotations
 
-import math
 import pickle
 import re
 import warnings
 import zipfile
 from pathlib import Path
+from typing import Any
 
+import msgspec
 import numpy as np
 import torch
 
-from npga_core.errors import AvatarFileError, brief
+from npga_core.errors import AvatarFileError
 from npga_core.files.pose import similarity_pose
 from npga_core.files.sequences import DEFAULT_FPS, ExpressionSequence
 from npga_core.files.untrusted import (
@@ -55,6 +56,7 @@ from npga_core.model.dynamics import ConditionedMLP, Dynamics
 from npga_core.model.expression import ExpressionSpace
 from npga_core.model.gaussians import SH_C0, GaussianCloud
 from npga_core.model.networks import InputSpec, MLPConfig, Route
+from npga_core.schema import SchemaError, decode, number
 
 HEAD = "gaussianhead_latest"
 SUPRES = "supres_latest"
@@ -161,17 +163,21 @@ def read_config(path: Path) -> dict[str, float]:
         raise AvatarFileError(path, f"not a readable YAML config ({(str(e).splitlines() or [''])[0][:120]})") from None
     except RecursionError:
         raise AvatarFileError(path, "not a readable YAML config (nested too deeply)") from None
-    module = cfg.get("gaussianheadmodule") if isinstance(cfg, dict) else None
-    if not isinstance(module, dict):
-        raise AvatarFileError(path, "has no gaussianheadmodule section (not a GHA config)")
-    out = {}
-    for key in (*PUBLISHED, "pos_freq", "exp_coeffs_dim"):
-        if key in module:
-            v = module[key]
-            if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or abs(v) > 1e6:
-                raise AvatarFileError(path, f"gaussianheadmodule.{key} = {brief(v)} is not a usable number")
-            out[key] = float(v)
-    return out
+    try:
+        module = decode(cfg, _Config).gaussianheadmodule
+    except SchemaError:
+        raise AvatarFileError(path, "has no gaussianheadmodule section (not a GHA config)") from None
+    try:
+        return {key: float(number(module[key], f"gaussianheadmodule.{key}", -1e6, 1e6))
+                for key in (*PUBLISHED, "pos_freq", "exp_coeffs_dim") if key in module}
+    except SchemaError as e:
+        raise AvatarFileError(path, f"{e} (not a usable number)") from None
+
+
+class _Config(msgspec.Struct):
+    """The part of a GHA YAML config read (its numbers, by `number`)."""
+
+    gaussianheadmodule: dict[str, Any]
 
 
 def _mlp_dims(state: dict[str, torch.Tensor], name: str, path: Path) -> list[int]:

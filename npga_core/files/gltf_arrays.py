@@ -12,9 +12,13 @@ from __future__ import annotations
 
 import math
 import warnings
-from typing import Any
+from typing import Annotated, Any
 
+import msgspec
 import numpy as np
+from msgspec import Meta
+
+from npga_core.schema import SchemaError, decode
 
 #: Most elements one accessor may claim (a LAM skin has 20k-160k vertices; 51 targets of them).
 MAX_COUNT = 50_000_000
@@ -45,40 +49,132 @@ def parse_glb(data: bytes) -> Any:
     return gltf
 
 
-def _int(value: Any, what: str, lo: int = 0, hi: int = 2**40) -> int:
-    if isinstance(value, bool) or not isinstance(value, int) or not lo <= value <= hi:
-        raise GltfError(f"{what} is {value!r}, not an integer in {lo}..{hi}")
-    return value
+# The part of glTF 2.0's JSON this module and the LAM reader use, declared (msgspec, read from pygltflib's objects;
+# what else a file holds is ignored). Indices are bounded here and checked against their lists where used.
+_Index = Annotated[int, Meta(ge=0, le=2**31 - 1)]
+_Size = Annotated[int, Meta(ge=0, le=2**40)]
+_F = Annotated[float, Meta(ge=-1e12, le=1e12)]
+
+
+class BufferView(msgspec.Struct):
+    byteLength: _Size
+    buffer: _Index | None = None
+    byteOffset: _Size | None = None
+    byteStride: Annotated[int, Meta(ge=0, le=252)] | None = None
+
+
+class SparseIndices(msgspec.Struct):
+    bufferView: _Index
+    componentType: int
+    byteOffset: _Size | None = None
+
+
+class SparseValues(msgspec.Struct):
+    bufferView: _Index
+    byteOffset: _Size | None = None
+
+
+class Sparse(msgspec.Struct):
+    count: _Size
+    indices: SparseIndices | None = None
+    values: SparseValues | None = None
+
+
+class Accessor(msgspec.Struct):
+    componentType: int
+    count: Annotated[int, Meta(ge=0, le=MAX_COUNT)]
+    type: Annotated[str, Meta(max_length=16)]
+    bufferView: _Index | None = None
+    byteOffset: _Size | None = None
+    sparse: Sparse | None = None
+
+
+class Node(msgspec.Struct):
+    name: Annotated[str, Meta(max_length=4096)] | None = None
+    mesh: _Index | None = None
+    skin: _Index | None = None
+    children: list[_Index] | None = None
+    matrix: tuple[_F, _F, _F, _F, _F, _F, _F, _F, _F, _F, _F, _F, _F, _F, _F, _F] | None = None
+    translation: tuple[_F, _F, _F] | None = None
+    rotation: tuple[_F, _F, _F, _F] | None = None
+    scale: tuple[_F, _F, _F] | None = None
+
+
+class Attributes(msgspec.Struct):
+    POSITION: _Index | None = None
+
+
+class Target(msgspec.Struct):
+    POSITION: _Index
+
+
+class Primitive(msgspec.Struct):
+    attributes: Attributes | None = None
+    targets: list[Target] | None = None
+
+
+class MeshExtras(msgspec.Struct):
+    targetNames: list[Annotated[str, Meta(min_length=1, max_length=128)]] | None = None
+
+
+class Mesh(msgspec.Struct):
+    primitives: list[Primitive] | None = None
+    extras: MeshExtras | None = None
+
+
+class Skin(msgspec.Struct):
+    joints: list[_Index] | None = None
+    inverseBindMatrices: _Index | None = None
+
+
+class Document(msgspec.Struct):
+    """What of a glTF's JSON is read."""
+
+    nodes: list[Node] | None = None
+    meshes: list[Mesh] | None = None
+    skins: list[Skin] | None = None
+    accessors: list[Accessor] | None = None
+    bufferViews: list[BufferView] | None = None
+
+
+def index_in(i: int, items: list, what: str) -> int:
+    """`i` if it indexes `items`, else GltfError naming `what`."""
+    if not i < len(items):
+        raise GltfError(f"{what} names {i}, the file has {len(items)}")
+    return i
 
 
 class GltfArrays:
-    """Accessor arrays and node matrices of one parsed glTF binary."""
+    """Accessor arrays and node matrices of one parsed glTF binary (its JSON decoded as `Document`)."""
 
     def __init__(self, gltf: Any):
         self.gltf = gltf
+        try:
+            self.doc: Document = decode(gltf, Document)
+        except SchemaError as e:
+            raise GltfError(str(e)) from None
         blob = gltf.binary_blob()
         self.blob = b"" if blob is None else bytes(blob)
-        self.nodes = list(gltf.nodes or [])
+        self.nodes = self.doc.nodes or []
 
-    def _view(self, index: Any, what: str) -> tuple[int, int, int | None]:
-        views = self.gltf.bufferViews or []
-        i = _int(index, f"{what}'s bufferView", 0, len(views) - 1) if views else None
-        if i is None:
-            raise GltfError(f"{what} names a buffer view, the file has none")
+    def _view(self, index: int, what: str) -> tuple[int, int, int | None]:
+        views = self.doc.bufferViews or []
+        i = index_in(index, views, f"{what}'s bufferView")
         v = views[i]
-        if _int(v.buffer if v.buffer is not None else 0, f"bufferView {i}'s buffer", 0, 0) != 0:
+        if v.buffer not in (None, 0):
             raise GltfError(f"bufferView {i} is not in the binary chunk")
-        off = _int(v.byteOffset or 0, f"bufferView {i}'s byteOffset")
-        length = _int(v.byteLength, f"bufferView {i}'s byteLength")
+        off, length = v.byteOffset or 0, v.byteLength
         if off + length > len(self.blob):
             raise GltfError(f"bufferView {i} ends at byte {off + length:,}, the binary chunk has "
                             f"{len(self.blob):,}")
-        stride = None if v.byteStride in (None, 0) else _int(v.byteStride, f"bufferView {i}'s byteStride", 4, 252)
-        return off, length, stride
+        if v.byteStride and v.byteStride < 4:
+            raise GltfError(f"bufferView {i}'s byteStride is {v.byteStride}, not 4..252")
+        return off, length, v.byteStride or None
 
-    def _dense(self, view: Any, offset: Any, count: int, dtype: np.dtype, width: int, what: str) -> np.ndarray:
+    def _dense(self, view: int, offset: int | None, count: int, dtype: np.dtype, width: int,
+               what: str) -> np.ndarray:
         start, length, stride = self._view(view, what)
-        off = _int(offset or 0, f"{what}'s byteOffset")
+        off = offset or 0
         item = dtype.itemsize * width
         step = stride or item
         if count and off + (count - 1) * step + item > length:
@@ -89,12 +185,10 @@ class GltfArrays:
         rows = np.lib.stride_tricks.as_strided(raw, (count, item), (step, 1))
         return np.ascontiguousarray(rows).view(dtype.newbyteorder("<")).reshape(count, width)
 
-    def accessor(self, index: Any, what: str, types: tuple[str, ...], max_count: int = MAX_COUNT) -> np.ndarray:
+    def accessor(self, index: int, what: str, types: tuple[str, ...], max_count: int = MAX_COUNT) -> np.ndarray:
         """Accessor `index` as a (count, width) array of its component type (sparse ones filled in)."""
-        accessors = self.gltf.accessors or []
-        i = _int(index, f"{what}'s accessor", 0, max(len(accessors) - 1, 0))
-        if not accessors:
-            raise GltfError(f"{what} names accessor {i}, the file has none")
+        accessors = self.doc.accessors or []
+        i = index_in(index, accessors, f"{what}'s accessor")
         a = accessors[i]
         name = f"{what} (accessor {i})"
         if a.type not in types:
@@ -102,14 +196,18 @@ class GltfArrays:
         if a.componentType not in _COMPONENTS:
             raise GltfError(f"{name} has an unknown componentType {a.componentType!r}")
         dtype, width = np.dtype(_COMPONENTS[a.componentType]), _WIDTH[a.type]
-        count = _int(a.count, f"{name}'s count", 0, max_count)
+        count = a.count
+        if count > max_count:
+            raise GltfError(f"{name}'s count is {count:,}, more than the {max_count:,} it may have")
         if a.bufferView is None:
             out = np.zeros((count, width), dtype)
         else:
             out = self._dense(a.bufferView, a.byteOffset, count, dtype, width, name).copy()
         if a.sparse is not None:
             sp = a.sparse
-            n = _int(sp.count, f"{name}'s sparse count", 1, count) if count else 0
+            n = sp.count if count else 0
+            if count and not 1 <= n <= count:
+                raise GltfError(f"{name}'s sparse count is {n:,}, not 1..{count:,}")
             if sp.indices is None or sp.values is None:
                 raise GltfError(f"{name}'s sparse part lacks indices or values")
             if sp.indices.componentType not in (5121, 5123, 5125):
@@ -125,7 +223,7 @@ class GltfArrays:
             raise GltfError(f"{name} has {int(out.size - np.isfinite(out).sum())} NaN/Inf values")
         return out
 
-    def sparse_target(self, index: Any, what: str, count: int) -> tuple[np.ndarray, np.ndarray]:
+    def sparse_target(self, index: int, what: str, count: int) -> tuple[np.ndarray, np.ndarray]:
         """A VEC3 float morph target as (rows, values): the rows it moves (ascending) and their deltas."""
         d = self.accessor(index, what, ("VEC3",), count)
         if d.shape[0] != count or d.dtype != np.float32:
@@ -138,11 +236,10 @@ class GltfArrays:
         """Node i's local transform (4x4, float64): its `matrix` (column-major) or T * R * S."""
         n = self.nodes[i]
         if n.matrix is not None:
-            m = np.asarray(_floats(n.matrix, 16, f"node {i}'s matrix"), np.float64).reshape(4, 4).T
-            return m
-        t = _floats(n.translation, 3, f"node {i}'s translation") if n.translation is not None else [0.0] * 3
-        q = _floats(n.rotation, 4, f"node {i}'s rotation") if n.rotation is not None else [0.0, 0.0, 0.0, 1.0]
-        s = _floats(n.scale, 3, f"node {i}'s scale") if n.scale is not None else [1.0] * 3
+            return np.asarray(n.matrix, np.float64).reshape(4, 4).T
+        t = n.translation if n.translation is not None else (0.0, 0.0, 0.0)
+        q = n.rotation if n.rotation is not None else (0.0, 0.0, 0.0, 1.0)
+        s = n.scale if n.scale is not None else (1.0, 1.0, 1.0)
         x, y, z, w = q
         norm = math.sqrt(x * x + y * y + z * z + w * w)
         if not norm > 1e-12:
@@ -161,7 +258,7 @@ class GltfArrays:
         parent: dict[int, int] = {}
         for i, n in enumerate(self.nodes):
             for c in n.children or []:
-                c = _int(c, f"node {i}'s child", 0, len(self.nodes) - 1)
+                index_in(c, self.nodes, f"node {i}'s child")
                 if c in parent or c == i:
                     raise GltfError(f"node {c} has two parents or is its own child")
                 parent[c] = i
@@ -181,14 +278,3 @@ class GltfArrays:
             i = parent[i]
             m = self.local_matrix(i) @ m
         return m
-
-
-def _floats(value: Any, n: int, what: str) -> list[float]:
-    if not isinstance(value, list | tuple) or len(value) != n:
-        raise GltfError(f"{what} is not a list of {n} numbers")
-    out = []
-    for v in value:
-        if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or abs(v) > 1e12:
-            raise GltfError(f"{what} has a value that is not a finite number")
-        out.append(float(v))
-    return out

@@ -28,13 +28,12 @@ bounded member count and sizes), then only the two members needed, each within i
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
 
 import numpy as np
 
 from npga_core.errors import AvatarFileError
 from npga_core.files.blendshape_names import ARKIT_52
-from npga_core.files.gltf_arrays import GltfArrays, GltfError, parse_glb
+from npga_core.files.gltf_arrays import GltfArrays, GltfError, Mesh, Primitive, Skin, index_in, parse_glb
 from npga_core.files.ply import read_ply_bytes
 from npga_core.files.untrusted import MAX_POSITION, read_zip_members, zip_member_names
 from npga_core.model.avatar import Avatar
@@ -131,16 +130,13 @@ def read_skin(data: bytes) -> LamSkin:
     """Parse skin.glb (GltfError on anything the player could not use)."""
     g = parse_glb(data)
     arrays = GltfArrays(g)
-    skinned = [i for i, n in enumerate(arrays.nodes) if n.mesh is not None and n.skin is not None]
+    skinned = [(n.mesh, n.skin) for n in arrays.nodes if n.mesh is not None and n.skin is not None]
     if not skinned:
         raise GltfError("has no skinned mesh (LAM's player needs one)")
-    node = arrays.nodes[skinned[-1]]  # the player keeps the last skinned mesh its traversal meets (152318)
-    meshes, skins = g.meshes or [], g.skins or []
-    if not isinstance(node.mesh, int) or not 0 <= node.mesh < len(meshes):
-        raise GltfError(f"the skinned node names mesh {node.mesh!r}, the file has {len(meshes)}")
-    if not isinstance(node.skin, int) or not 0 <= node.skin < len(skins):
-        raise GltfError(f"the skinned node names skin {node.skin!r}, the file has {len(skins)}")
-    mesh, skin = meshes[node.mesh], skins[node.skin]
+    mesh_i, skin_i = skinned[-1]  # the player keeps the last skinned mesh its traversal meets (152318)
+    meshes, skins = arrays.doc.meshes or [], arrays.doc.skins or []
+    mesh = meshes[index_in(mesh_i, meshes, "the skinned node's mesh")]
+    skin = skins[index_in(skin_i, skins, "the skinned node's skin")]
     if not mesh.primitives:
         raise GltfError("the skinned mesh has no primitives")
     prim = mesh.primitives[0]
@@ -155,30 +151,26 @@ def read_skin(data: bytes) -> LamSkin:
     joints = list(skin.joints or [])
     head = _head_matrix(arrays, skin, joints)
     # the player looks for a Bone named 'hip' (loadModel, 152318-152321): a joint of the skin, not any node
-    has_hip = any(isinstance(j, int) and 0 <= j < len(arrays.nodes) and arrays.nodes[j].name == "hip" for j in joints)
+    has_hip = any(j < len(arrays.nodes) and arrays.nodes[j].name == "hip" for j in joints)
     return LamSkin(pos, names, sparse, head, len(joints), has_hip)
 
 
-def _morph_targets(arrays: GltfArrays, mesh: Any, prim: Any, n: int) -> tuple[list[str], list[tuple[np.ndarray,
-                   np.ndarray]]]:
+def _morph_targets(arrays: GltfArrays, mesh: Mesh, prim: Primitive, n: int) -> tuple[list[str],
+                   list[tuple[np.ndarray, np.ndarray]]]:
     """The morph targets' names (mesh.extras.targetNames) and sparse POSITION deltas."""
     targets = list(prim.targets or [])
-    extras = mesh.extras if isinstance(mesh.extras, dict) else {}
-    names = extras.get("targetNames", [])
+    names = (mesh.extras.targetNames if mesh.extras is not None else None) or []
     if not targets:
         raise GltfError("the skinned mesh has no morph targets (a LAM skin has the ARKit shapes)")
     if len(targets) > MAX_TARGETS:
         raise GltfError(f"has {len(targets)} morph targets, more than the {MAX_TARGETS} allowed")
-    if not isinstance(names, list) or len(names) != len(targets) or not all(
-            isinstance(s, str) and 0 < len(s) <= 128 for s in names):
+    if len(names) != len(targets):
         raise GltfError(f"mesh.extras.targetNames must name each of the {len(targets)} morph targets")
     if len(set(names)) != len(names):
         raise GltfError("mesh.extras.targetNames has repeated names")
     sparse = []
     for k, t in enumerate(targets):
-        if not isinstance(t, dict) or "POSITION" not in t:
-            raise GltfError(f"morph target {k} ({names[k]!r}) has no POSITION")
-        rows, values = arrays.sparse_target(t["POSITION"], f"morph target {names[k]!r}", n)
+        rows, values = arrays.sparse_target(t.POSITION, f"morph target {names[k]!r}", n)
         if values.size and np.abs(values).max() > MAX_POSITION:
             raise GltfError(f"morph target {names[k]!r} moves a vertex by {float(np.abs(values).max()):.3g}, beyond "
                             f"+-{MAX_POSITION:g}")
@@ -186,11 +178,10 @@ def _morph_targets(arrays: GltfArrays, mesh: Any, prim: Any, n: int) -> tuple[li
     return list(names), sparse
 
 
-def _head_matrix(arrays: GltfArrays, skin: Any, joints: list) -> np.ndarray:
+def _head_matrix(arrays: GltfArrays, skin: Skin, joints: list[int]) -> np.ndarray:
     """matrixWorld x inverseBindMatrix of the joint named 'head' (what the player's shader applies)."""
     parent = arrays.parents()
-    heads = [j for j, node_i in enumerate(joints) if isinstance(node_i, int) and 0 <= node_i < len(arrays.nodes)
-             and arrays.nodes[node_i].name == "head"]
+    heads = [j for j, node_i in enumerate(joints) if node_i < len(arrays.nodes) and arrays.nodes[node_i].name == "head"]
     if not heads:
         raise GltfError("the skin has no joint named 'head' (LAM's player moves every splat by it)")
     if skin.inverseBindMatrices is None:

@@ -4,72 +4,92 @@
 from __future__ import annotations
 
 from pathlib import Path
+from typing import Annotated, Any
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
 from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError
-from npga_core.files.untrusted import image_size, json_dict, read_json, shown
+from npga_core.files.untrusted import MAX_IMAGE_SIDE, read_json, shown
+from npga_core.schema import Finite, decode, decode_file, number
 
 #: Most cameras read from one rig file.
 MAX_CAMERAS = 1024
 
 
+_Row3 = tuple[Finite, Finite, Finite]
+_Row4 = tuple[Finite, Finite, Finite, Finite]
+_Matrix4 = tuple[_Row4, _Row4, _Row4, _Row4]
+
+
+class CameraFile(msgspec.Struct):
+    """One camera as `Camera.to_dict` writes it (width and height whole numbers; `Camera` checks the rest)."""
+
+    width: Finite
+    height: Finite
+    fx: Finite
+    fy: Finite
+    cx: Finite
+    cy: Finite
+    world_to_camera: _Matrix4
+
+
+def camera_of(data: object, where: str = "") -> Camera:
+    """The `Camera` of a parsed camera object (`CameraFile`'s schema, then `Camera`'s own checks); ValueError
+    naming the field after `where`."""
+    c: CameraFile = decode(data, CameraFile, where)
+    w, h = (number(v, f"{where}.{k}" if where else k, 1, 2**31 - 1, whole=True)
+            for k, v in (("width", c.width), ("height", c.height)))
+    try:
+        return Camera(np.asarray(c.world_to_camera, np.float64), c.fx, c.fy, c.cx, c.cy, w, h)
+    except ValueError as e:
+        raise ValueError(f"{where}: {e}" if where else str(e)) from None
+
+
 def load_camera(path: str | Path) -> Camera:
     """One camera as `Camera.to_json` writes it, read as untrusted JSON (regular file, size, depth and number
-    bounds); AvatarFileError naming the file and the problem."""
+    bounds) and decoded by `CameraFile`; AvatarFileError naming the file and the problem."""
     path = Path(path)
-    data = read_json(path, what="a camera file")
     try:
-        return Camera.from_dict(data, source="camera")
+        return camera_of(read_json(path, what="a camera file"))
     except ValueError as e:
-        raise AvatarFileError(path, str(e).removeprefix("camera: ")) from None
+        raise AvatarFileError(path, str(e)) from None
+
+
+class _RigFile(msgspec.Struct):
+    """NeRSemble's ``camera_params.json``: ``world_2_cam`` per serial (4x4), shared ``intrinsics`` (3x3) and an
+    optional ``image_size`` [w, h] (integers; a float with an integral value is taken as one)."""
+
+    world_2_cam: Annotated[dict[str, Any], Meta(max_length=MAX_CAMERAS)]  # each a `_Matrix4`
+    intrinsics: tuple[_Row3, _Row3, _Row3]
+    image_size: tuple[Finite, Finite] | None = None
 
 
 def load_rig(path: str | Path) -> dict[str, Camera]:
     """Cameras by serial (escaped with `shown`: lone surrogates or newlines never reach the UI). The image
     size is taken from `image_size` [w, h] if present, else 2*cx x 2*cy.
 
-    Read as untrusted JSON (regular file, size and depth bounds); image sides must be within
-    `MAX_IMAGE_SIDE`, at most `MAX_CAMERAS` cameras.
+    Read as untrusted JSON (regular file, size and depth bounds) and decoded by `_RigFile`'s schema; image sides
+    must be within `MAX_IMAGE_SIDE`, at most `MAX_CAMERAS` cameras.
     """
     path = Path(path)
-    d = json_dict(read_json(path, what="a camera file"), path, "a camera file")
-    if "world_2_cam" not in d or "intrinsics" not in d:
-        raise AvatarFileError(path, "expected keys 'world_2_cam' (per serial) and 'intrinsics'")
-    w2c = json_dict(d["world_2_cam"], path, "world_2_cam")
-    if len(w2c) > MAX_CAMERAS:
-        raise AvatarFileError(path, f"{len(w2c)} cameras, more than the {MAX_CAMERAS} allowed")
+    rig = decode_file(read_json(path, what="a camera file"), _RigFile, path)
+    k = np.asarray(rig.intrinsics, np.float64)
+    fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
+    size = rig.image_size if rig.image_size is not None else (round(2 * cx), round(2 * cy))
     try:
-        k = _matrix(d["intrinsics"], (3, 3), "intrinsics")
-        fx, fy, cx, cy = k[0, 0], k[1, 1], k[0, 2], k[1, 2]
-        size = d.get("image_size")
-        if size is None:
-            size = (round(2 * cx), round(2 * cy))
-        elif not isinstance(size, list) or len(size) != 2:
-            raise ValueError("image_size must be [width, height]")
-        w, h = image_size(size[0], size[1], path)
+        w, h = (number(v, f"image_size[{i}]", 1, MAX_IMAGE_SIDE, whole=True) for i, v in enumerate(size))
         cams = {}
-        for serial, m in w2c.items():
-            m44 = _matrix(m, (4, 4), f"world_2_cam[{shown(serial)!r}]")
-            cams[shown(serial)] = Camera(m44, fx, fy, cx, cy, w, h)  # serials are shown (imgui): escaped
-    except (TypeError, ValueError, AttributeError, OverflowError) as e:
+        for serial, m in rig.world_2_cam.items():  # serials are shown (imgui): escaped
+            w2c = decode_file(m, _Matrix4, path, f"world_2_cam[{shown(serial)[:60]!r}]")
+            cams[shown(serial)] = Camera(np.asarray(w2c, np.float64), fx, fy, cx, cy, w, h)
+    except (TypeError, ValueError, OverflowError) as e:
         raise AvatarFileError(path, f"bad camera data: {e}") from None
     if not cams:
         raise AvatarFileError(path, "no cameras in world_2_cam")
     return dict(sorted(cams.items()))
-
-
-def _matrix(value: object, shape: tuple[int, int], what: str) -> np.ndarray:
-    """A finite real matrix of `shape` from parsed JSON (lists of numbers only)."""
-    if not isinstance(value, list) or len(value) != shape[0] or not all(
-            isinstance(row, list) and len(row) == shape[1] and all(
-                isinstance(v, int | float) and not isinstance(v, bool) for v in row) for row in value):
-        raise ValueError(f"{what} must be a {shape[0]}x{shape[1]} matrix of numbers")
-    m = np.asarray(value, np.float64)
-    if not np.isfinite(m).all():
-        raise ValueError(f"{what} has non-finite values")
-    return m
 
 
 def fit_camera(cam: Camera, width: int, height: int) -> Camera:

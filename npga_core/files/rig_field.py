@@ -14,12 +14,16 @@ from `checkpoint.py`, which calls these functions.
 
 from __future__ import annotations
 
-from typing import Any
+from typing import Annotated, Any
 
+import msgspec
 import numpy as np
+from msgspec import Meta
 
+from npga_core.errors import brief
 from npga_core.model.linear_rig import CARRIERS, RESERVED_CARRIERS, LinearRig
 from npga_core.model.skinning import SKIN_ARRAYS, Skin
+from npga_core.schema import decode
 
 #: The oldest format version that holds a rig, and one on a skinned mesh (carrier "triangle").
 RIG_VERSION = 4
@@ -34,57 +38,53 @@ MAX_TEXT = 4096
 MAX_NOTES = 32
 
 
+_Name = Annotated[str, Meta(min_length=1, max_length=MAX_NAME)]
+_Text = Annotated[str, Meta(max_length=MAX_TEXT)]
+
+
+class _Skin(msgspec.Struct, forbid_unknown_fields=True):
+    joints: Annotated[list[_Name], Meta(min_length=1, max_length=MAX_JOINTS)]
+    faces: Annotated[int, Meta(ge=1, le=MAX_FACES)]
+
+
+class Section(msgspec.Struct):
+    """The header's ``rig`` entry, declared (`check_section` checks what depends on the file)."""
+
+    channels: Annotated[list[_Name], Meta(min_length=1, max_length=MAX_CHANNELS)]
+    support: Annotated[int, Meta(ge=0, le=2**31 - 1)]
+    carrier: _Text = "gaussian"
+    vertices: bool = False
+    turns_covariance: bool = False
+    source: _Text = ""
+    notes: Annotated[dict[Annotated[str, Meta(max_length=MAX_NAME)], _Text], Meta(max_length=MAX_NOTES)] = {}
+    points: Annotated[int, Meta(ge=3, le=MAX_POINTS)] | None = None  # carrier "triangle": the mesh's vertices
+    skin: _Skin | None = None  # carrier "triangle"
+
+
 def check_section(entry: Any, n: int, version: int = RIG_VERSION) -> None:
-    """ValueError unless `entry` (the header's ``rig``, not null) is well formed for `n` Gaussians in a file of
-    format `version`."""
-    if not isinstance(entry, dict):
-        raise ValueError("rig must be an object or null")
-    names = entry.get("channels")
-    if not isinstance(names, list) or not 1 <= len(names) <= MAX_CHANNELS:
-        raise ValueError(f"rig.channels must be a list of 1..{MAX_CHANNELS} names")
-    if not all(isinstance(c, str) and 0 < len(c) <= MAX_NAME for c in names) or len(set(names)) != len(names):
-        raise ValueError(f"rig.channels must be distinct non-empty strings of at most {MAX_NAME} characters")
-    carrier = entry.get("carrier", "gaussian")
-    if carrier == "triangle" and version < SKIN_VERSION:
+    """ValueError (naming the field) unless `entry` (the header's ``rig``, not null) is well formed for `n`
+    Gaussians in a file of format `version`."""
+    s = decode(entry, Section, "rig")
+    if len(set(s.channels)) != len(s.channels):
+        raise ValueError("rig.channels must be distinct names (one repeats)")
+    if s.carrier == "triangle" and version < SKIN_VERSION:
         raise ValueError(f"rig.carrier 'triangle' needs format version {SKIN_VERSION}")
-    points = _check_skin(entry, n) if carrier == "triangle" else n
-    support = entry.get("support")
-    if isinstance(support, bool) or not isinstance(support, int) or not 0 <= support <= points:
+    points = n
+    if s.carrier == "triangle":
+        if s.points is None or s.skin is None:
+            raise ValueError("rig.points and rig.skin are needed for carrier 'triangle' (the skinned mesh)")
+        if len(set(s.skin.joints)) != len(s.skin.joints):
+            raise ValueError("rig.skin.joints must be distinct names (one repeats)")
+        points = s.points
+    if s.support > points:
         raise ValueError(f"rig.support must be an integer in 0..{points} (the points some channel moves)")
-    if carrier in RESERVED_CARRIERS:
-        raise ValueError(f"rig.carrier {carrier!r} (Gaussians bound to a skinned mesh's triangles) is specified "
+    if s.carrier in RESERVED_CARRIERS:
+        raise ValueError(f"rig.carrier {s.carrier!r} (Gaussians bound to a skinned mesh's triangles) is specified "
                          "but not supported by this version of npga-view")
-    if carrier not in CARRIERS:
-        raise ValueError(f"rig.carrier must be one of {', '.join(CARRIERS)}, got {carrier!r}")
-    for key in ("vertices", "turns_covariance"):
-        if not isinstance(entry.get(key, False), bool):
-            raise ValueError(f"rig.{key} must be true or false")
-    if (entry.get("vertices", False) and carrier == "gaussian") or (carrier == "triangle"
-                                                                    and not entry.get("vertices", False)):
+    if s.carrier not in CARRIERS:
+        raise ValueError(f"rig.carrier must be one of {', '.join(CARRIERS)}, got {brief(s.carrier)}")
+    if (s.vertices and s.carrier == "gaussian") or (s.carrier == "triangle" and not s.vertices):
         raise ValueError("rig.vertices are stored for carrier 'vertex' (optionally) and 'triangle' (always)")
-    if not isinstance(entry.get("source", ""), str) or len(entry.get("source", "")) > MAX_TEXT:
-        raise ValueError(f"rig.source must be a string of at most {MAX_TEXT} characters")
-    notes = entry.get("notes", {})
-    if not isinstance(notes, dict) or len(notes) > MAX_NOTES or not all(
-            isinstance(k, str) and isinstance(v, str) and len(k) <= MAX_NAME and len(v) <= MAX_TEXT
-            for k, v in notes.items()):
-        raise ValueError(f"rig.notes must map at most {MAX_NOTES} short names to strings")
-
-
-def _check_skin(entry: dict, n: int) -> int:
-    """The mesh's vertex count V of a triangle rig's entry, after its checks."""
-    points, skin = entry.get("points"), entry.get("skin")
-    if isinstance(points, bool) or not isinstance(points, int) or not 3 <= points <= MAX_POINTS:
-        raise ValueError(f"rig.points must be an integer in 3..{MAX_POINTS} (the skinned mesh's vertices)")
-    if not isinstance(skin, dict) or set(skin) != {"joints", "faces"}:
-        raise ValueError("rig.skin must be an object with joints and faces")
-    joints, faces = skin["joints"], skin["faces"]
-    if not isinstance(joints, list) or not 1 <= len(joints) <= MAX_JOINTS or len(set(map(str, joints))) != len(
-            joints) or not all(isinstance(j, str) and 0 < len(j) <= MAX_NAME for j in joints):
-        raise ValueError(f"rig.skin.joints must be 1..{MAX_JOINTS} distinct short names")
-    if isinstance(faces, bool) or not isinstance(faces, int) or not 1 <= faces <= MAX_FACES:
-        raise ValueError(f"rig.skin.faces must be an integer in 1..{MAX_FACES}")
-    return points
 
 
 def tensors(entry: dict, n: int) -> dict[str, tuple[str, tuple[int, ...]]]:
@@ -152,8 +152,7 @@ def build(entry: dict, t: dict[str, np.ndarray], n: int, limit: float) -> Linear
 
 def header_entry(header: dict) -> Any:
     """The header's ``rig`` entry; None when absent, null or empty, or in a file older than version 4."""
-    version = header.get("format_version", 1)
-    if isinstance(version, bool) or not isinstance(version, int) or version < RIG_VERSION:
+    if header.get("format_version", 1) < RIG_VERSION:  # (an integer: checked before)
         return None
     entry = header.get(HEADER_KEY)
     return entry if entry not in (None, {}) else None

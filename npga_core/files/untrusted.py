@@ -15,7 +15,8 @@ file is closed everywhere at once:
   is checked finite before it is drawn or written (`finite_output`);
 - names and paths of any encoding are shown escaped (`shown`, from npga_core.errors);
 - JSON has a size bound and a nesting-depth bound checked by a non-recursive scan before parsing; NaN,
-  Infinity, non-finite floats and absurdly long integers are refused.
+  Infinity, non-finite floats and absurdly long integers are refused. What the parsed value must look like is
+  declared as a schema and checked by `npga_core.schema` (field paths in its messages).
 
 Every failure is an `AvatarFileError(path, "one line")`.
 """
@@ -484,39 +485,7 @@ def read_json(path: str | Path, max_bytes: int = MAX_JSON_BYTES, max_depth: int 
 
 
 # --------------------------------------------------------------------------------------------------
-# checked values from parsed JSON
-
-
-def json_dict(value: Any, path: str | Path, what: str) -> dict:
-    """`value` if it is a JSON object, else AvatarFileError naming `what`."""
-    if not isinstance(value, dict):
-        raise AvatarFileError(path, f"{what} must be a JSON object, got {type(value).__name__}")
-    return value
-
-
-def json_number(value: Any, path: str | Path, what: str, lo: float = -math.inf, hi: float = math.inf) -> float:
-    """A finite real number in [lo, hi] (bools refused)."""
-    if isinstance(value, bool) or not isinstance(value, int | float):
-        raise AvatarFileError(path, f"{what} must be a number, got {type(value).__name__}")
-    if isinstance(value, int) and abs(value).bit_length() > 1000:
-        raise AvatarFileError(path, f"{what} is an integer of {abs(value).bit_length()} bits, out of range")
-    v = float(value)
-    if not (math.isfinite(v) and lo <= v <= hi):
-        raise AvatarFileError(path, f"{what} is {v:.6g}, outside [{lo:g}, {hi:g}]")
-    return v
-
-
-def json_int(value: Any, path: str | Path, what: str, lo: int = 0, hi: int = 2**31 - 1) -> int:
-    """An integer in [lo, hi] (a float with an integral value is accepted; bools refused)."""
-    if isinstance(value, float) and value.is_integer():
-        value = int(value)
-    if isinstance(value, bool) or not isinstance(value, int):
-        raise AvatarFileError(path, f"{what} must be an integer, got {type(value).__name__}")
-    if abs(value).bit_length() > 128:
-        raise AvatarFileError(path, f"{what} is an integer of {abs(value).bit_length()} bits, out of range")
-    if not lo <= value <= hi:
-        raise AvatarFileError(path, f"{what} is {value}, outside [{lo}, {hi}]")
-    return value
+# images
 
 
 def check_pixels(width: int, height: int, path: str | Path, what: str = "an image of") -> None:
@@ -524,8 +493,3 @@ def check_pixels(width: int, height: int, path: str | Path, what: str = "an imag
     decoded, resized or allocated)."""
     if width * height > MAX_IMAGE_PIXELS:
         raise AvatarFileError(path, f"{what} {width}x{height} pixels, more than the {MAX_IMAGE_PIXELS:,} allowed")
-
-
-def image_size(width: Any, height: Any, path: str | Path, max_side: int = MAX_IMAGE_SIDE) -> tuple[int, int]:
-    """A checked (width, height) in pixels: integers in [1, max_side]."""
-    return (json_int(width, path, "image width", 1, max_side), json_int(height, path, "image height", 1, max_side))

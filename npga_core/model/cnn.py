@@ -18,13 +18,17 @@ from __future__ import annotations
 import math
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, field
+from typing import Annotated
 
+import msgspec
 import numpy as np
 import torch
+from msgspec import Meta
 from torch import nn
 
 from npga_core.errors import brief
-from npga_core.model.networks import ACTIVATIONS, strict_float, strict_int, strict_str
+from npga_core.model.networks import ACTIVATIONS
+from npga_core.schema import decode
 
 #: Bounds a header cannot exceed (a file claiming more is refused before anything is allocated or run).
 MAX_KERNEL = 15
@@ -152,52 +156,56 @@ class CNNConfig:
                 "ops": [dict(o) for o in self.ops or []]}
 
     @staticmethod
-    def from_json(d: dict) -> CNNConfig:
+    def from_json(d: object, where: str = "cnn") -> CNNConfig:
+        """The checked architecture of a header's `cnn` section (`_CNNJson`); ValueError naming `where` and the
+        field."""
+        j: _CNNJson = decode(d, _CNNJson, where)
         try:
-            residual = d.get("residual", True)
-            if not isinstance(residual, bool):
-                raise ValueError(f"residual must be true or false, got {brief(residual)}")
-            if "ops" in d:
-                if not isinstance(d["ops"], list) or len(d["ops"]) > MAX_OPS:
-                    raise ValueError(f"ops must be a list of at most {MAX_OPS} operations")
-                cfg = CNNConfig(residual=residual, ops=[_op(o) for o in d["ops"]],
-                                input=strict_str(d.get("input", "rgb+latent"), "input"),
-                                latent_background=strict_float(d.get("latent_background", 0.0), "latent_background"))
+            if j.ops is not None:
+                cfg = CNNConfig(residual=j.residual, ops=[msgspec.to_builtins(o) for o in j.ops], input=j.input,
+                                latent_background=j.latent_background)
+            elif j.layers is not None:
+                cfg = CNNConfig([ConvLayer(i, o, k, a) for i, o, k, a in j.layers], j.residual)
             else:
-                if not isinstance(d["layers"], list) or len(d["layers"]) > MAX_OPS:
-                    raise ValueError(f"layers must be a list of at most {MAX_OPS} convolutions")
-                layers = [ConvLayer(strict_int(i, "in_channels"), strict_int(o, "out_channels"),
-                                    strict_int(k, "kernel"), None if a is None else strict_str(a, "activation"))
-                          for i, o, k, a in d["layers"]]
-                cfg = CNNConfig(layers, residual)
-        except (KeyError, TypeError, ValueError) as e:
-            raise ValueError(f"malformed CNN architecture: {e}") from None
-        cfg.validate()
+                raise ValueError("malformed CNN architecture: neither layers nor ops given")
+            cfg.validate()
+        except ValueError as e:
+            raise ValueError(f"{where}: {e}") from None
         return cfg
 
 
-def _op(o: object) -> dict:
-    """One checked operation of a version-2 CNN description."""
-    if not isinstance(o, dict):
-        raise ValueError(f"a CNN operation must be an object, got {brief(o)}")
-    kind = strict_str(o.get("op"), "op")
-    if kind == "conv":
-        bias = o.get("bias", True)
-        if not isinstance(bias, bool):
-            raise ValueError("conv bias must be true or false")
-        return {"op": "conv", "in": strict_int(o.get("in"), "in"), "out": strict_int(o.get("out"), "out"),
-                "kernel": strict_int(o.get("kernel"), "kernel"), "bias": bias}
-    if kind == "act":
-        return {"op": "act", "name": strict_str(o.get("name"), "activation")}
-    if kind == "instance_norm":
-        return {"op": "instance_norm", "eps": strict_float(o.get("eps", 1e-5), "eps")}
-    if kind == "upsample":
-        aligned = o.get("align_corners", False)
-        if not isinstance(aligned, bool):
-            raise ValueError("align_corners must be true or false")
-        return {"op": "upsample", "factor": strict_int(o.get("factor"), "factor"),
-                "mode": strict_str(o.get("mode", "bilinear"), "mode"), "align_corners": aligned}
-    raise ValueError(f"unknown CNN operation {brief(kind)}")
+# The header's description of the CNN, declared (msgspec; `CNNConfig.validate` checks the rest).
+_Int = Annotated[int, Meta(ge=-(2**31), le=2**31 - 1)]
+_Str = Annotated[str, Meta(max_length=64)]
+
+
+class _Conv(msgspec.Struct, tag_field="op", tag="conv"):
+    in_: _Int = msgspec.field(name="in")
+    out: _Int
+    kernel: _Int
+    bias: bool = True
+
+
+class _Act(msgspec.Struct, tag_field="op", tag="act"):
+    name: _Str
+
+
+class _InstanceNorm(msgspec.Struct, tag_field="op", tag="instance_norm"):
+    eps: Annotated[float, Meta(ge=-1e6, le=1e6)] = 1e-5
+
+
+class _Upsample(msgspec.Struct, tag_field="op", tag="upsample"):
+    factor: _Int
+    mode: _Str = "bilinear"
+    align_corners: bool = False
+
+
+class _CNNJson(msgspec.Struct):
+    residual: bool = True
+    layers: Annotated[list[tuple[_Int, _Int, _Int, _Str | None]], Meta(max_length=MAX_OPS)] | None = None
+    ops: Annotated[list[_Conv | _Act | _InstanceNorm | _Upsample], Meta(max_length=MAX_OPS)] | None = None
+    input: _Str = "rgb+latent"
+    latent_background: Annotated[float, Meta(ge=-1e6, le=1e6)] = 0.0
 
 
 class ScreenCNN(nn.Module):

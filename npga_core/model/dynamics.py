@@ -31,11 +31,10 @@ from npga_core.model.networks import (
     ConditionedMLP,
     MLPConfig,
     Route,
-    strict_int,
 )
 
 __all__ = ["ACTIVATIONS", "ATTRIBUTES", "ATTRIBUTE_OPS", "MAX_POS_FREQS", "RIG", "RULES", "ConditionedMLP", "Dynamics",
-           "MLPConfig", "Offsets", "Route", "apply_offsets", "cloud_tensors", "output_widths", "strict_int",
+           "MLPConfig", "Offsets", "Route", "apply_offsets", "cloud_tensors", "output_widths",
            "to_posed_gaussians"]
 
 

@@ -17,33 +17,15 @@ from __future__ import annotations
 import math
 from collections.abc import Callable
 from dataclasses import dataclass, field
+from typing import Annotated
 
+import msgspec
 import torch
+from msgspec import Meta
 from torch import nn
 
 from npga_core.errors import brief
-
-
-def strict_int(v: object, what: str) -> int:
-    """`v` if it is a JSON integer (not a bool, float or string), else ValueError."""
-    if isinstance(v, bool) or not isinstance(v, int):
-        raise ValueError(f"{what} must be an integer, got {brief(v)}")
-    return v
-
-
-def strict_str(v: object, what: str) -> str:
-    """`v` if it is a string, else ValueError."""
-    if not isinstance(v, str):
-        raise ValueError(f"{what} must be a string, got {brief(v)}")
-    return v
-
-
-def strict_float(v: object, what: str, limit: float = 1e6) -> float:
-    """`v` as a float if it is a finite JSON number within +-limit, else ValueError."""
-    if isinstance(v, bool) or not isinstance(v, int | float) or not math.isfinite(v) or abs(v) > limit:
-        raise ValueError(f"{what} must be a finite number within +-{limit:g}, got {brief(v)}")
-    return float(v)
-
+from npga_core.schema import decode
 
 MAX_POS_FREQS = 20
 MAX_WIDTH = 65536
@@ -71,6 +53,44 @@ PER_GAUSSIAN_INPUTS = frozenset({"position", "features"})
 ENCODINGS = {"none": 0.0, "nerf": math.pi, "gha": 1.0}
 
 
+# The header's description of a network, declared (msgspec; `MLPConfig.from_json` checks the rest).
+_Int = Annotated[int, Meta(ge=-(2**31), le=2**31 - 1)]
+_Float = Annotated[float, Meta(ge=-1e6, le=1e6)]
+_Str = Annotated[str, Meta(max_length=64)]
+
+
+class _InputJson(msgspec.Struct):
+    kind: _Str
+    encoding: _Str = "none"
+    freqs: _Int = 0
+
+
+class _RouteJson(msgspec.Struct):
+    attribute: _Str
+    start: _Int = msgspec.field(name="from")
+    width: _Int
+    to: _Int = 0
+    scale: _Float = 1.0
+
+
+class _MLPJson(msgspec.Struct):
+    feature_dim: _Int
+    code_dim: _Int
+    outputs: list[tuple[_Str, _Int]] | None = None
+    hidden: _Int = 256
+    depth: _Int = 6
+    activation: _Str = "relu"
+    pos_freqs: _Int = 0
+    skips: Annotated[list[_Int], Meta(max_length=256)] = []
+    inputs: Annotated[list[_InputJson], Meta(max_length=16)] | None = None
+    condition_dim: _Int = 0
+    slope: _Float = 0.01
+    output_activation: _Str = "none"
+    routes: Annotated[list[_RouteJson], Meta(max_length=256)] | None = None
+    out_dim: _Int | None = None
+    blend: _Str | None = None
+
+
 def activation(name: str, slope: float = 0.01) -> Callable[[torch.Tensor], torch.Tensor]:
     """The activation function `name` (leaky ReLU with `slope`)."""
     if name == "leaky_relu":
@@ -96,21 +116,17 @@ class InputSpec:
         return d
 
     @staticmethod
-    def from_json(d: object) -> InputSpec:
-        if not isinstance(d, dict):
-            raise ValueError(f"an input must be an object, got {brief(d)}")
-        kind = strict_str(d.get("kind"), "input kind")
-        if kind not in INPUT_KINDS:
-            raise ValueError(f"unknown input kind {brief(kind)} (known: {', '.join(INPUT_KINDS)})")
-        enc = strict_str(d.get("encoding", "none"), "encoding")
-        if enc not in ENCODINGS:
-            raise ValueError(f"unknown encoding {brief(enc)} (known: {', '.join(ENCODINGS)})")
-        freqs = strict_int(d.get("freqs", 0), "freqs")
-        if enc != "none" and kind not in ("position", "condition"):
-            raise ValueError(f"a positional encoding applies to position and condition, not {kind}")
-        if not 0 <= freqs <= MAX_POS_FREQS or (enc == "none" and freqs):
-            raise ValueError(f"freqs {freqs} outside 0..{MAX_POS_FREQS} (or given without an encoding)")
-        return InputSpec(kind, enc, freqs)
+    def from_json(d: _InputJson) -> InputSpec:
+        """The checked input of a decoded description."""
+        if d.kind not in INPUT_KINDS:
+            raise ValueError(f"unknown input kind {brief(d.kind)} (known: {', '.join(INPUT_KINDS)})")
+        if d.encoding not in ENCODINGS:
+            raise ValueError(f"unknown encoding {brief(d.encoding)} (known: {', '.join(ENCODINGS)})")
+        if d.encoding != "none" and d.kind not in ("position", "condition"):
+            raise ValueError(f"a positional encoding applies to position and condition, not {d.kind}")
+        if not 0 <= d.freqs <= MAX_POS_FREQS or (d.encoding == "none" and d.freqs):
+            raise ValueError(f"freqs {d.freqs} outside 0..{MAX_POS_FREQS} (or given without an encoding)")
+        return InputSpec(d.kind, d.encoding, d.freqs)
 
 
 def encode(x: torch.Tensor, spec: InputSpec) -> torch.Tensor:
@@ -141,14 +157,11 @@ class Route:
                 "scale": self.scale}
 
     @staticmethod
-    def from_json(d: object) -> Route:
-        if not isinstance(d, dict):
-            raise ValueError(f"a route must be an object, got {brief(d)}")
-        attr = strict_str(d.get("attribute"), "route attribute")
-        if attr not in ATTRIBUTES:
-            raise ValueError(f"unknown attribute {brief(attr)} (known: {', '.join(ATTRIBUTES)})")
-        return Route(attr, strict_int(d.get("from"), "route from"), strict_int(d.get("width"), "route width"),
-                     strict_int(d.get("to", 0), "route to"), strict_float(d.get("scale", 1.0), "route scale"))
+    def from_json(d: _RouteJson) -> Route:
+        """The checked route of a decoded description."""
+        if d.attribute not in ATTRIBUTES:
+            raise ValueError(f"unknown attribute {brief(d.attribute)} (known: {', '.join(ATTRIBUTES)})")
+        return Route(d.attribute, d.start, d.width, d.to, d.scale)
 
 
 def _v1_inputs(pos_freqs: int) -> list[InputSpec]:
@@ -316,32 +329,23 @@ class MLPConfig:
         return d
 
     @staticmethod
-    def from_json(d: dict) -> MLPConfig:
+    def from_json(d: object, where: str = "") -> MLPConfig:
+        """The checked architecture of a header's description (`_MLPJson`); ValueError naming `where` and the
+        field."""
+        j: _MLPJson = decode(d, _MLPJson, where)
         try:
-            blend = d.get("blend")
-            cfg = MLPConfig(
-                feature_dim=strict_int(d["feature_dim"], "feature_dim"),
-                code_dim=strict_int(d["code_dim"], "code_dim"),
-                outputs=[(strict_str(n, "output name"), strict_int(w, f"width of {n}"))
-                         for n, w in d.get("outputs", [])],
-                hidden=strict_int(d.get("hidden", 256), "hidden"),
-                depth=strict_int(d.get("depth", 6), "depth"),
-                activation=strict_str(d.get("activation", "relu"), "activation"),
-                pos_freqs=strict_int(d.get("pos_freqs", 0), "pos_freqs"),
-                skips=[strict_int(s, "skip") for s in d.get("skips", [])],
-                inputs=[InputSpec.from_json(s) for s in d["inputs"]] if "inputs" in d else None,
-                condition_dim=strict_int(d.get("condition_dim", 0), "condition_dim"),
-                slope=strict_float(d.get("slope", 0.01), "slope"),
-                output_activation=strict_str(d.get("output_activation", "none"), "output_activation"),
-                routes=[Route.from_json(r) for r in d["routes"]] if "routes" in d else None,
-                out_width=strict_int(d["out_dim"], "out_dim") if "out_dim" in d else None,
-                blend=None if blend is None else strict_str(blend, "blend"),
-            )
-            if "outputs" not in d and "routes" not in d:
-                raise ValueError("neither outputs nor routes given")
-        except (KeyError, TypeError, ValueError) as e:
-            raise ValueError(f"malformed MLP architecture: {e}") from None
-        cfg.validate()
+            if j.outputs is None and j.routes is None:
+                raise ValueError("malformed MLP architecture: neither outputs nor routes given")
+            cfg = MLPConfig(feature_dim=j.feature_dim, code_dim=j.code_dim, outputs=list(j.outputs or []),
+                            hidden=j.hidden, depth=j.depth, activation=j.activation, pos_freqs=j.pos_freqs,
+                            skips=list(j.skips), inputs=None if j.inputs is None else [InputSpec.from_json(s)
+                                                                                      for s in j.inputs],
+                            condition_dim=j.condition_dim, slope=j.slope, output_activation=j.output_activation,
+                            routes=None if j.routes is None else [Route.from_json(r) for r in j.routes],
+                            out_width=j.out_dim, blend=j.blend)
+            cfg.validate()
+        except ValueError as e:
+            raise ValueError(f"{where}: {e}" if where else str(e)) from None
         return cfg
 
 

@@ -18,7 +18,7 @@ import json
 import math
 from dataclasses import dataclass
 from pathlib import Path
-from typing import IO
+from typing import IO, Any
 
 import numpy as np
 import torch
@@ -26,7 +26,8 @@ import torch
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
 from npga_core.files.places import cache_folder_for
-from npga_core.files.untrusted import file_size, json_dict, json_int, open_regular, parse_json
+from npga_core.files.untrusted import file_size, open_regular, parse_json
+from npga_core.schema import decode_file, number
 
 BAKE_MAGIC = b"NPGABAKE"
 BAKE_FORMAT = 1
@@ -173,16 +174,16 @@ class BakeStore:
                 hlen = int.from_bytes(fh.read(8), "little")
                 if hlen > _MAX_HEADER:
                     return None
-                header = json_dict(parse_json(fh.read(hlen), path, max_depth=4), path, "bake header")
+                header = decode_file(parse_json(fh.read(hlen), path, max_depth=4), dict[str, Any], path, "bake header")
                 size = file_size(fh) or 0
             if header.get("format") != BAKE_FORMAT or header.get("key") != key:
                 return None
             shape, dtype = header.get("shape"), header.get("dtype")
             if dtype not in ("|u1", "<u2") or not isinstance(shape, list) or len(shape) != 3:
                 return None
-            stored, n_rows, n_width = (json_int(v, path, "bake shape", 1, 2**40) for v in shape)
-            frames = json_int(header.get("frames"), path, "bake frames", 1, _MAX_FRAMES)
-            stride = json_int(header.get("stride"), path, "bake stride", 1, _MAX_FRAMES)
+            stored, n_rows, n_width = (number(v, "bake shape", 1, 2**40, whole=True) for v in shape)
+            frames = number(header.get("frames"), "bake frames", 1, _MAX_FRAMES, whole=True)
+            stride = number(header.get("stride"), "bake stride", 1, _MAX_FRAMES, whole=True)
             if _stored_count(frames, stride) != stored or (n_rows, n_width) != (rows or n_rows, width or n_width):
                 return None
             start = len(BAKE_MAGIC) + 8 + hlen

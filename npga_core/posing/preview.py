@@ -25,7 +25,7 @@ import time
 from collections.abc import Callable
 from dataclasses import dataclass
 from pathlib import Path
-from typing import cast
+from typing import Any, cast
 
 import numpy as np
 import torch
@@ -35,9 +35,10 @@ from scipy.spatial import cKDTree
 from npga_core.errors import AvatarFileError
 from npga_core.files.atomic import atomic_write
 from npga_core.files.places import cache_folder_for
-from npga_core.files.untrusted import bounded_floats, json_dict, json_int, parse_json, read_npz, real_floats
+from npga_core.files.untrusted import bounded_floats, parse_json, read_npz, real_floats
 from npga_core.model.avatar import Avatar
 from npga_core.posing.fastpose import FastPoser, Lane
+from npga_core.schema import decode_file, number
 
 PREVIEW_FORMAT = 1
 MAX_CACHED_NEIGHBOURS = 64  # probes per Gaussian accepted from a cache file
@@ -124,7 +125,8 @@ class PreviewModel:
         budget = 4096 + n * (8 * 2 * MAX_CACHED_NEIGHBOURS + 16)
         try:
             f = read_npz(path, budget, keys=("probes", "neighbours", "weights", "sensitivity", "meta"), max_members=8)
-            meta = json_dict(parse_json(f["meta"].astype(np.uint8).tobytes(), path, max_depth=4), path, "meta")
+            text = f["meta"].astype(np.uint8).tobytes()
+            meta = decode_file(parse_json(text, path, max_depth=4), dict[str, Any], path, "meta")
             if meta.get("format") != PREVIEW_FORMAT or meta.get("key") != key:
                 return None
             probes, neighbours, weights = f["probes"], f["neighbours"], f["weights"]
@@ -141,7 +143,7 @@ class PreviewModel:
             model = PreviewModel(probes.astype(np.int64), neighbours.astype(np.int64),
                                  bounded_floats(weights, path, "weights", MAX_WEIGHT),
                                  None if sens is None else real_floats(sens, path, "sensitivity"),
-                                 json_int(meta.get("fitted_codes", 0), path, "fitted_codes", 0, 2**20), key)
+                                 number(meta.get("fitted_codes", 0), "fitted_codes", 0, 2**20, whole=True), key)
         except (AvatarFileError, OSError, ValueError, KeyError):
             return None
         return model

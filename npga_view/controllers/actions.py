@@ -10,14 +10,17 @@ import json
 import os
 from collections.abc import Callable
 from pathlib import Path
+from typing import Annotated, Any
 
 import numpy as np
+from msgspec import Meta
 
-from npga_core.errors import AvatarFileError
+from npga_core.errors import AvatarFileError, brief
 from npga_core.files.atomic import atomic_write
 from npga_core.files.rig import load_rig
-from npga_core.files.untrusted import json_dict, json_number, read_json
+from npga_core.files.untrusted import read_json
 from npga_core.model.expression import ExpressionSpace
+from npga_core.schema import Finite, decode_file
 from npga_view import actions as A
 from npga_view.controllers.bake import BakeController
 from npga_view.controllers.host import ViewerHost
@@ -260,13 +263,11 @@ class ActionController:
 
 
 def read_presets(path: str | Path) -> dict[str, list[float]]:
-    """Expression presets {name: code} from untrusted JSON (bounded; finite numbers only); AvatarFileError."""
-    d = json_dict(read_json(path, MAX_SESSION_BYTES, what="a presets file"), path, "presets")
-    if len(d) > 10000:
-        raise AvatarFileError(path, f"{len(d)} presets, more than the 10000 allowed")
-    out = {}
-    for name, code in d.items():
-        if not isinstance(code, list) or not code or len(code) > 4096:
-            raise AvatarFileError(path, f"preset {name[:40]!r} must be a list of 1..4096 numbers")
-        out[name] = [json_number(v, path, f"preset {name[:40]!r}") for v in code]
-    return out
+    """Expression presets {name: code} from untrusted JSON (bounded; finite numbers only); AvatarFileError naming
+    the preset whose code is wrong."""
+    d = decode_file(read_json(path, MAX_SESSION_BYTES, what="a presets file"), _Presets, path)
+    return {name: decode_file(code, _Code, path, f"presets[{brief(name)}]") for name, code in d.items()}
+
+
+_Presets = Annotated[dict[str, Any], Meta(max_length=10000)]
+_Code = Annotated[list[Finite], Meta(min_length=1, max_length=4096)]

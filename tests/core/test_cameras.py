@@ -76,17 +76,22 @@ def test_json_round_trip(tmp_path):
     [
         (None, "no such file"),
         ("{not json", "not valid JSON"),
-        ("[1, 2]", "expected a JSON object"),
-        ('{"width": 10, "height": 10}', "missing key(s) fx"),
+        ("[1, 2]", "expected an object, got a list"),
+        ('{"width": 10, "height": 10}', "object missing required field `fx`"),
         ('{"width": 10, "height": 10, "fx": 1, "fy": 1, "cx": 5, "cy": 5, "world_to_camera": [[1, 0], [0, 1]]}',
-         "4x4"),
-        ('{"width": 10, "height": 10, "fx": 1, "fy": 1, "cx": 5, "cy": 5, "world_to_camera": "eye"}', "4x4"),
+         "world_to_camera: expected a list of length 4, got 2"),
+        ('{"width": 10, "height": 10, "fx": 1, "fy": 1, "cx": 5, "cy": 5, "world_to_camera": "eye"}',
+         "world_to_camera: expected a list, got a string"),
+        ('{"width": 10, "height": 10, "fx": 1, "fy": 1, "cx": 5, "cy": 5, "world_to_camera": '
+         '[[1, 0, 0, 0], [0, 1, 0, 0], [0, 0, 1, 0], [0, 0, "1", 1]]}', "world_to_camera[3][2]: expected a number"),
         ('{"width": 10.5, "height": 10, "fx": 1, "fy": 1, "cx": 5, "cy": 5, "world_to_camera": '
-         "[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}", "integers"),
+         "[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}", "width: expected an integer, got a number"),
+        ('{"width": 10, "height": 10, "fx": "1", "fy": 1, "cx": 5, "cy": 5, "world_to_camera": '
+         "[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}", "fx: expected a number, got a string"),
         ('{"width": 10, "height": 10, "fx": -1, "fy": 1, "cx": 5, "cy": 5, "world_to_camera": '
          "[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}", "focal"),
         ('{"width": 0, "height": 10, "fx": 1, "fy": 1, "cx": 5, "cy": 5, "world_to_camera": '
-         "[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}", "positive"),
+         "[[1,0,0,0],[0,1,0,0],[0,0,1,0],[0,0,0,1]]}", "width: expected an integer >= 1, got 0"),
     ],
 )
 def test_bad_json_names_file_and_problem(tmp_path, content, problem):

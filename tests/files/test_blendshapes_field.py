@@ -92,14 +92,19 @@ def _scale_matrix(value: float):
 
 
 BAD_HEADERS = {
-    "names not a list": (lambda h: h["blendshapes"].update(names="jawOpen"), "names must be a list"),
+    "names not a list": (lambda h: h["blendshapes"].update(names="jawOpen"),
+                          "blendshapes.names: expected a list, got a string"),
     "duplicate names": (lambda h: h["blendshapes"].update(names=["a", "a", "b"]), "duplicate"),
-    "empty name": (lambda h: h["blendshapes"].update(names=["a", "", "b"]), "non-empty"),
-    "dim a string": (lambda h: h["blendshapes"].update(dim="12"), "dim must be an integer"),
-    "dim is a bool": (lambda h: h["blendshapes"].update(dim=True), "dim must be an integer"),
-    "dim too large": (lambda h: h["blendshapes"].update(dim=10**9), "dim must be an integer"),
-    "not an object": (lambda h: h.update(blendshapes=[1, 2]), "must be an object"),
-    "source a number": (lambda h: h["blendshapes"].update(source=3), "source must be a string"),
+    "empty name": (lambda h: h["blendshapes"].update(names=["a", "", "b"]),
+                    r"blendshapes.names\[1\]: expected a string of length >= 1"),
+    "dim a string": (lambda h: h["blendshapes"].update(dim="12"), "blendshapes.dim: expected an integer, got a string"),
+    "dim is a bool": (lambda h: h["blendshapes"].update(dim=True),
+                      "blendshapes.dim: expected an integer, got a boolean"),
+    "dim too large": (lambda h: h["blendshapes"].update(dim=10**9),
+                      "blendshapes.dim: expected an integer <= 65536, got 1000000000"),
+    "not an object": (lambda h: h.update(blendshapes=[1, 2]), "blendshapes: expected an object, got a list"),
+    "source a number": (lambda h: h["blendshapes"].update(source=3),
+                         "blendshapes.source: expected a string, got an integer"),
     "tensor missing": (lambda h: h["tensors"].pop("blendshapes.offset"), "missing tensor"),
     "names disagree with the matrix": (lambda h: h["blendshapes"].update(names=["a", "b"]), "shape"),
 }

@@ -114,8 +114,8 @@ def test_json_layouts_in_the_wild(tmp_path, layout):
 
 
 @pytest.mark.parametrize("doc, match", [
-    ({"facsNames": ["jawOpen"], "weightMat": [[0.1, 0.2]]}, "weightMat row 0 must have 1 values"),
-    ({"names": ["jawOpen"], "values": "x"}, "values must be a list"),
+    ({"facsNames": ["jawOpen"], "weightMat": [[0.1, 0.2]]}, r"weightMat\[0\]: expected 1 values"),
+    ({"names": ["jawOpen"], "values": "x"}, "values: expected a list"),
     ([{"time": 0, "blendshapes": {"jawOpen": 1}}, {"time": 1, "blendshapes": {"x": 1}}], "same 1 blendshapes"),
     ({"faceBlendshapes": []}, "no face"),
 ])
