@@ -29,7 +29,7 @@ long drag), unless it is a full-resolution refinement that a new interaction mak
 dropped. Which image to start is decided by the pure `draw_plan.plan` (its named states: idle, live,
 refining, waiting for a merge); this class gathers its inputs and carries it out. (The behaviour before
 budgeting, every change drawn at once in full, lives in the benchmark that compares both:
-npga_view/cli/bench_window.py.)
+npga_view/benchmarks/bench_window.py.)
 """
 
 from __future__ import annotations
