@@ -36,6 +36,7 @@ from npga_core.model.cnn import ScreenCNN, run_cnn, run_cnn_steps
 from npga_core.posing.device import resolve_device
 from npga_view.rendering.factory import choose_path
 from npga_view.rendering.renderer import load_shader
+from npga_view.rendering.uniforms import uniform
 
 if TYPE_CHECKING:
     from npga_core.model.avatar import Avatar
@@ -393,9 +394,9 @@ class Refiner:
         scaled = self._texture.size != (vp[2], vp[3])
         self._texture.filter = (moderngl.LINEAR, moderngl.LINEAR) if scaled else (moderngl.NEAREST, moderngl.NEAREST)
         self._texture.use(0)
-        self._program["u_image"].value = 0  # type: ignore[union-attr]
-        self._program["u_background"].value = (0.0, 0.0, 0.0)  # type: ignore[union-attr]
-        self._program["u_flip_y"].value = 1 if flip_y else 0  # type: ignore[union-attr]
+        uniform(self._program, "u_image").value = 0
+        uniform(self._program, "u_background").value = (0.0, 0.0, 0.0)
+        uniform(self._program, "u_flip_y").value = 1 if flip_y else 0
         self._vao.render(moderngl.TRIANGLES, vertices=3)
 
     def release(self) -> None:
