@@ -127,7 +127,7 @@ class _Renderer:
                          ("preprocess_ms", t.get("preprocess", 0.0)), ("draw_ms", t.get("draw", 0.0))):
                 rows.setdefault(k, []).append(v)
             if avatar.cnn is not None and self.r.latent_dim:
-                from npga_view.rendering.refinement import cnn_input
+                from npga_view.rendering.pipeline import cnn_input
 
                 t0 = time.perf_counter()
                 image = cnn_input(self.r, avatar.cnn, c)  # the image the window's CNN takes (its input size)
@@ -412,7 +412,7 @@ def viewer_side(path: str, args) -> dict:
 def _helper_init(parent_pid: int) -> None:
     """Start of bench's helper process: exit when bench is gone; SIGTERM unwinds like in the CLI."""
     from npga_core.posing.lifetime import start_parent_watch
-    from npga_view.cli import signals
+    from npga_view import signals
 
     start_parent_watch(parent_pid, [])
     signals.install()

@@ -557,18 +557,25 @@ class SplatRenderer(AuxiliaryPasses):
         """
         self.draw(camera, mode)
         t0 = time.perf_counter()
-        front = self._fbo
-        assert front is not None
-        image = self._read(front, 0, camera.width, camera.height)
         if mode == "rgb":
-            bg = np.asarray(background, dtype=np.float32).reshape(3)
-            out = image[..., :3] + (1.0 - image[..., 3:4]) * bg
-        elif mode == "depth":
-            out = image[..., 0].copy()
+            out = self.front_image(background)
         else:
-            out = image[..., 3].copy()
+            out = self.front_rgba()[..., 0 if mode == "depth" else 3].copy()
         self.last_timings["readback"] = (time.perf_counter() - t0) * 1e3
         return out
+
+    def front_rgba(self) -> np.ndarray:
+        """The finished image read back: premultiplied RGBA (H, W, 4) float32, rows top to bottom."""
+        front, (w, h) = self._fbo, self.image_size
+        if front is None:
+            raise ValueError("no image is finished yet")
+        return self._read(front, 0, w, h)
+
+    def front_image(self, background=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """The finished image over `background`: (H, W, 3) float32 C + (1 - A) bg, rows top to bottom (what `render`
+        returns, and what the CNN takes)."""
+        image = self.front_rgba()
+        return image[..., :3] + (1.0 - image[..., 3:4]) * np.asarray(background, dtype=np.float32).reshape(3)
 
     def present(self, framebuffer: moderngl.Framebuffer, background=(0.0, 0.0, 0.0), flip_y: bool = True,
                 viewport: tuple[int, int, int, int] | None = None) -> None:
