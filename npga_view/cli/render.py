@@ -11,6 +11,7 @@ import argparse
 import json
 import sys
 import time
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, cast
 
@@ -337,12 +338,13 @@ def _render(args) -> int:
     from npga_view.signals import interruptible
 
     cnn = avatar.cnn  # on a helper thread: SIGTERM/SIGINT end a CNN of minutes at once
+    runner = None if cnn is None else partial(interruptible, cnn.refine)
     frames = OffscreenFrames(avatar, renderer, camera if cameras is None else cameras[0], args.mode, background,
                              inspect_settings(args), legend=not args.no_legend,
                              raw_npy=str(args.out).lower().endswith(".npy"), use_cnn=not args.no_cnn,
                              precision=getattr(args, "precision", "fp32"),
-                             source=args.timeline or args.sequence or args.expr or args.avatar,
-                             cnn_runner=None if cnn is None else lambda x: interruptible(cnn.refine, x))
+                             source=str(args.timeline or args.sequence or args.expr or args.avatar),
+                             cnn_runner=runner)
     if getattr(args, "verbose", False) and avatar.dynamics is not None:
         print(f"exact dynamics: {frames.poses.precision}", file=sys.stderr)
     if len(avatar.cloud) == 0:

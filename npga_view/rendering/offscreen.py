@@ -5,6 +5,7 @@ the one pipeline of the window, Compare and the commands (`npga_view/rendering/p
 from __future__ import annotations
 
 from collections.abc import Callable
+from pathlib import Path
 from typing import TYPE_CHECKING, cast
 
 import numpy as np
@@ -32,7 +33,7 @@ class OffscreenFrames:
 
     def __init__(self, avatar: Avatar, renderer: SplatRenderer, camera: Camera, mode: str, background: Vec3,
                  settings: InspectSettings, *, legend: bool = True, raw_npy: bool = False, use_cnn: bool = True,
-                 precision: str = "fp32", source: object = "", cnn_runner: Runner | None = None) -> None:
+                 precision: str = "fp32", source: str | Path = "", cnn_runner: Runner | None = None) -> None:
         from npga_core.inspection.inspector import Inspector
         from npga_core.posing.oneshot import ExactPoses
 

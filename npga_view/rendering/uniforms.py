@@ -1,7 +1,7 @@
 """Typed access to a moderngl program's uniforms.
 
 moderngl types `program[name]` as a union of member kinds (uniform, uniform block, attribute, varying, ...), so
-setting `.value` or calling `.write` on it needed a `type: ignore[union-attr]` at every use; `uniform` checks
+setting `.value` or calling `.write` on it needed an ignore of mypy's union-attr check at every use; `uniform` checks
 the kind once and returns a `moderngl.Uniform`.
 """
 
