@@ -137,17 +137,19 @@ class RefineController:
                                             self.state.latent_channel, alpha=alpha, latent=latent)
                 self._drop_latent()
             else:
-                if self._view is None or self._view.key != key:  # from the splat image on screen
-                    self._drop_latent()
-                    self._view = ViewImage(self.renderer, camera, bg, refiner, key, self.renderer.front_image(bg))
+                view = self._view
+                if view is None or view.key != key or (view.stage == "cnn" and refiner.pending_key() != key):
+                    self._drop_latent()  # a new view (or its CNN job was cancelled): from the splat image on screen
+                    rgb = self.renderer.front_image(bg)
+                    view = self._view = ViewImage(self.renderer, camera, bg, refiner, key, rgb)
                 t0 = time.perf_counter()
-                stage = self._view.stage
-                done = self._view.advance(self.draws.frame_budget(False))
+                stage = view.stage
+                done = view.advance(self.draws.frame_budget(False))
                 if stage == "latent":  # the latent pass in slices within the frame's budget
                     self.draws.drew_outside((time.perf_counter() - t0) * 1e3)
                 if not done:
                     return False
-                image = cast(np.ndarray, self._view.image)
+                image = cast(np.ndarray, view.image)
                 self._view = None
                 info.cnn_ms = refiner.last_timings.get("cnn", 0.0)
                 info.timings["cnn"] = info.cnn_ms
