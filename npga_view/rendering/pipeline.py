@@ -130,6 +130,7 @@ class ViewImage:
         self.image: np.ndarray | None = None
         self.timings: dict[str, float] = {}
         self._latent: np.ndarray | None = None
+        self._latent_begun = False  # this view's latent pass was begun (the renderer's may be another's)
         net = cnn.cnn if cnn is not None else None
         self.stage = "splats" if rgb is None and (net is None or net.config.input != "latent") else "latent"
         if self.stage == "splats":  # (a CNN on the latent channels alone takes no splat image)
@@ -176,8 +177,9 @@ class ViewImage:
         one UI frame it froze the window); True once it is finished."""
         r = self.renderer
         if self._latent is None:
-            if not r.latent_drawing:  # not begun, or dropped by another pass: (again) from the start
+            if not (self._latent_begun and r.latent_drawing):  # not begun, or dropped by another pass: (again)
                 r.begin_latent(self.camera)
+                self._latent_begun = True
             self._latent = r.continue_latent(budget_ms)
         return self._latent is not None
 
@@ -193,7 +195,7 @@ class ViewImage:
         """Drop the unfinished passes of this view (the CNN step's own job is the caller's to cancel)."""
         if self.stage == "splats":
             self.renderer.cancel_draw()
-        elif self.stage == "latent" and self.renderer.latent_drawing:
+        elif self.stage == "latent" and self._latent_begun and self.renderer.latent_drawing:
             self.renderer.cancel_latent()
 
 
