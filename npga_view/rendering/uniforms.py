@@ -11,7 +11,7 @@ import moderngl
 import numpy as np
 
 
-def uniform(program: moderngl.Program, name: str) -> moderngl.Uniform:
+def uniform(program: moderngl.Program | moderngl.ComputeShader, name: str) -> moderngl.Uniform:
     """The uniform `name` of `program` (KeyError when the program has no such member, as `program[name]`;
     TypeError when the member is not a uniform)."""
     member = program[name]
