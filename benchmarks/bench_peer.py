@@ -1,4 +1,4 @@
-"""Full-resolution draw against GaussianSplattingViewer's OpenGL renderer (npga_view/cli/bench_peer.py).
+"""Full-resolution draw against GaussianSplattingViewer's OpenGL renderer (npga_view/benchmarks/bench_peer.py).
 
     python benchmarks/bench_peer.py --peer PATH/TO/GaussianSplattingViewer [--frames 15] [--size 1360x900]
            [--rounds 2] [--json out.json] [--screenshots DIR]
@@ -15,6 +15,6 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 if __name__ == "__main__":
-    from npga_view.cli.bench_peer import main
+    from npga_view.benchmarks.bench_peer import main
 
     sys.exit(main())

@@ -1,4 +1,4 @@
-"""The real window measured on its pixels: `npga-view bench --window` (npga_view/cli/bench_window.py).
+"""The real window measured on its pixels: `npga-view bench --window` (npga_view/benchmarks/bench_window.py).
 
     python benchmarks/bench_window.py [--gaussians 100000 250000] [--seconds 6] [--json out.json]
 """
@@ -13,7 +13,7 @@ sys.path.insert(0, str(Path(__file__).resolve().parents[1]))
 
 
 def main() -> int:
-    from npga_view.cli.bench_window import run
+    from npga_view.benchmarks.bench_window import run
 
     p = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     p.add_argument("--gaussians", type=int, nargs="*", default=[100000, 250000])

@@ -67,7 +67,7 @@ class ViewerApp:
         # state.merged_live (set each frame in _draw_splats)
         self.lod = LiveDetail(lambda: create_renderer(self.ctx, 64, 64), self.renderer)
         # frame-budgeted, adaptive-resolution drawing; frame_budget_ms=None is the benchmark's comparison: every
-        # change drawn at once in full by its `unbudgeted` scheduler (npga_view/cli/bench_window.py)
+        # change drawn at once in full by its `unbudgeted` scheduler (npga_view/benchmarks/bench_window.py)
         if frame_budget_ms is None and unbudgeted is None:
             raise ValueError("frame_budget_ms=None needs the unbudgeted scheduler of the window benchmark")
         scheduler: type[DrawScheduler] = DrawScheduler if unbudgeted is None or frame_budget_ms is not None \

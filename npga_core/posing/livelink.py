@@ -38,12 +38,14 @@ import numpy as np
 
 from npga_core.files.arkit_takes import Take, write_livelink_csv
 from npga_core.files.blendshape_names import ANGLE_NAMES, ARKIT_52
-from npga_core.posing.smoothing import OneEuro
+from npga_core.posing.smoothing import Smoothing, SmoothingFilter
 
 VALUES = 61
 SHAPES = len(ARKIT_52)
 CHANNELS: tuple[str, ...] = (*ARKIT_52, *ANGLE_NAMES)
 DEFAULT_PORT = 11111
+#: The receiver's smoothing of the weights unless told otherwise (`npga-view web`'s stream).
+STREAM_SMOOTHING = Smoothing("one_euro", min_cutoff=1.0, beta=0.5)
 _ID_BYTES = 37
 _TAIL = struct.Struct("!ifiiB")  # frame, sub-frame, rate numerator, denominator, value count
 _VALUES = struct.Struct(f"!{VALUES}f")
@@ -142,18 +144,19 @@ class LiveLinkReceiver:
     """Receives Live Link Face packets on a thread; `latest()` gives the newest processed weights.
 
     Processing per packet: neutral removal (``(w - n) / (1 - n)`` clipped at 0, n the captured rest weights),
-    per-channel gains, then one-euro smoothing over the packets' own frame times (when enabled). Head and eye
+    per-channel gains, then `smoothing` (`npga_core.posing.smoothing`; default the one-euro filter) over the
+    packets' own frame times; None: none (the window smooths the codes itself, as its Timeline says). Head and eye
     angles (radians) are made relative to the neutral's.
     """
 
     def __init__(self, port: int = DEFAULT_PORT, host: str = "127.0.0.1", subject: str | None = None,
-                 smoothing: tuple[float, float] | None = (1.0, 0.5)):
+                 smoothing: Smoothing | None = STREAM_SMOOTHING):
         self.subject = subject
         self.counters = Counters()
         self._lock = threading.Lock()
         self._gains = np.ones(SHAPES, np.float64)
         self._neutral = np.zeros(VALUES, np.float64)
-        self._filter = OneEuro(*smoothing) if smoothing is not None else None
+        self._filter = SmoothingFilter(smoothing) if smoothing is not None else None
         self._raw: np.ndarray | None = None
         self._out: tuple[np.ndarray, np.ndarray, float] | None = None
         self._seen = True

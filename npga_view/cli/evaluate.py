@@ -17,19 +17,13 @@ from __future__ import annotations
 import argparse
 import sys
 import time
-from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
-from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError, CommandError
-
-NPGA_SIZE = (550, 802)  # (width, height) of the paper's metrics
-#: NeRSemble's frontal camera, held out for evaluation in the paper: nersemble-benchmark's constants.py lists it
-#: as the "center" of BENCHMARK_NVS_HOLD_OUT_SERIALS and as SERIALS[8]; GaussianAvatars' doc/offline_render.md
-#: renders the NeRSemble "front view" with `--select_camera_id 8`
-NERSEMBLE_FRONTAL = "222200037"
+from npga_core.evaluation.report import Row
+from npga_core.evaluation.views import NPGA_SIZE, frontal_camera, protocol_view
 
 
 class EvaluateError(CommandError):
@@ -73,48 +67,6 @@ def _frame_filter(text: str):
         raise EvaluateError(f"--frames {text[:60]!r}: expected frame numbers 0..{10 * MAX_FRAMES} and ranges "
                             "like 0,5,10-20") from None
     return lambda f: any(lo <= f <= hi for lo, hi in ranges)
-
-
-@dataclass
-class Row:
-    frame: int
-    camera: str
-    psnr: float
-    ssim: float
-    lpips: float | None
-    masked: str
-
-
-def protocol_view(cam: Camera, image: np.ndarray, mask: np.ndarray | None, size=NPGA_SIZE, source: str | Path = ""):
-    """The paper's framing: scale so the image covers `size` (area filter), crop the centre; the camera alike.
-    AvatarFileError naming `source` when the scaled image would exceed the pixel budget every image has."""
-    import cv2
-
-    from npga_core.files.untrusted import check_pixels
-    w, h = size
-    s = max(w / cam.width, h / cam.height)
-    sw, sh = max(w, round(cam.width * s)), max(h, round(cam.height * s))
-    check_pixels(sw, sh, source, f"the protocol's {w}x{h} crop of this {cam.width}x{cam.height} image needs a resize "
-                 "to")
-    x0, y0 = (sw - w) // 2, (sh - h) // 2
-
-    def fit(a: np.ndarray) -> np.ndarray:
-        return cv2.resize(a, (sw, sh), interpolation=cv2.INTER_AREA)[y0:y0 + h, x0:x0 + w]
-
-    sx, sy = sw / cam.width, sh / cam.height
-    c = Camera(cam.world_to_camera, cam.fx * sx, cam.fy * sy, cam.cx * sx - x0, cam.cy * sy - y0, w, h)
-    return c, fit(image), None if mask is None else fit(mask)
-
-
-def frontal_camera(capture) -> str:
-    """NeRSemble's frontal serial when present, else the camera looking most along the rig's mean direction."""
-    cams = capture.cameras
-    if NERSEMBLE_FRONTAL in cams:
-        return NERSEMBLE_FRONTAL
-    first = {c: v.camera for (f, c), v in sorted(capture.views.items())}
-    dirs = {c: cam.camera_to_world[:3, 2] for c, cam in first.items()}
-    mean = np.mean(list(dirs.values()), axis=0)
-    return max(dirs, key=lambda c: float(dirs[c] @ mean))
 
 
 def _progress(i: int, n: int, t0: float) -> None:
@@ -183,8 +135,8 @@ def _render_view(renderer, avatar, cam, background, use_cnn: bool, shape: tuple[
     """The avatar's image for `cam` (through its CNN when `use_cnn`), at the capture image's `shape`."""
     render = renderer.render(cam, background)
     if use_cnn:
-        from npga_view.cli.signals import interruptible
-        from npga_view.rendering.refinement import refine_frame
+        from npga_view.rendering.pipeline import refine_frame
+        from npga_view.signals import interruptible
         render = refine_frame(renderer, avatar.cnn, cam, background, rgb=render,
                               runner=lambda x: interruptible(avatar.cnn.refine, x))
         if render.shape[:2] != shape[:2]:  # a CNN that upsamples: area-filtered to the capture's size
@@ -196,9 +148,10 @@ def _render_view(renderer, avatar, cam, background, use_cnn: bool, shape: tuple[
 def _evaluate(args) -> int:
     from npga_core.evaluation.capture import load_capture
     from npga_core.evaluation.metrics import Lpips, lpips_status, score
+    from npga_core.evaluation.report import write_report
     from npga_core.evaluation.views import frame_code
+    from npga_core.files.image_file import ImageWriteError
     from npga_core.files.loading import load_avatar
-    from npga_view.cli.evaluate_report import write_report
     from npga_view.cli.render import parse_background
     from npga_view.rendering.factory import create_renderer
     from npga_view.rendering.gl import GLUnavailableError, create_headless_context
@@ -267,7 +220,10 @@ def _evaluate(args) -> int:
         _progress(len(views), len(views), t0)
     elapsed = time.perf_counter() - t0
     notes.append(f"{len(rows)} views in {elapsed:.1f} s ({elapsed / max(len(rows), 1) * 1e3:.0f} ms a view)")
-    summary = write_report(out, rows, keep, problems, notes, protocol=args.protocol, avatar=str(args.avatar))
+    try:
+        summary = write_report(out, rows, keep, problems, notes, protocol=args.protocol, avatar=str(args.avatar))
+    except ImageWriteError as e:
+        raise EvaluateError(str(e)) from None
     print(summary)
     for line in problems:
         print(f"problem: {line}", file=sys.stderr)

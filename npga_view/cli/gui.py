@@ -86,7 +86,7 @@ def run(args: argparse.Namespace) -> int:
             return 2
     if args.quit_after_frames is not None:
         check_files(args)
-    from npga_view.cli import signals
+    from npga_view import signals
 
     holder: dict = {}
 

@@ -18,7 +18,7 @@ SUBCOMMANDS: dict[str, tuple[str, str]] = {
     "view": ("npga_view.cli.gui", "open the viewer (the default: `npga-view [AVATAR] [options]` is the same)"),
     "info": ("npga_view.cli.info", "print a summary of an avatar file"),
     "render": ("npga_view.cli.render", "render an avatar headless to PNG or MP4"),
-    "bench": ("npga_view.cli.bench", "measure the dynamics (exact, preview, playback) on this machine"),
+    "bench": ("npga_view.benchmarks.bench", "measure the dynamics (exact, preview, playback) on this machine"),
     "export": ("npga_view.cli.export", "export the avatar posed at one expression as a 3DGS .ply"),
     "import": ("npga_view.cli.importer", "convert another method's checkpoint (gha) into an .npga avatar"),
     "evaluate": ("npga_view.cli.evaluate", "render the avatar from a capture's views and score it (PSNR/SSIM/LPIPS)"),
@@ -74,7 +74,7 @@ def build_parser() -> argparse.ArgumentParser:
 def main(argv: list[str] | None = None) -> int:
     """Entry point; returns the exit code (2 for bad input, with a one-line message and no traceback;
     128 + N when ended by signal N, after the same cleanup as a normal exit)."""
-    from npga_view.cli import signals
+    from npga_view import signals
 
     argv = list(sys.argv[1:] if argv is None else argv)
     if argv and argv[0] in ("-h", "--help", "--version"):

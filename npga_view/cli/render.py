@@ -11,6 +11,7 @@ import argparse
 import json
 import sys
 import time
+from functools import partial
 from pathlib import Path
 from typing import TYPE_CHECKING, cast
 
@@ -27,7 +28,6 @@ RENDER_MODES = ("rgb", "depth", "alpha", "latent")
 #: inspection modes (npga_core.inspection.inspector); feature:K and latent:K take a channel
 INSPECT_MODES = ("features", "feature:K", "latent:K", "offset", "laplacian", "sensitivity", "opacity", "scale",
                  "points", "ellipsoids", "knn")
-LEGEND_HEIGHT = 64
 _Vec3 = tuple[float, float, float]
 IMAGE_SUFFIXES = (".png", ".jpg", ".jpeg", ".bmp", ".tif", ".tiff")
 
@@ -217,31 +217,6 @@ def _timeline(args, avatar, camera: Camera) -> tuple[list, list[Camera], float]:
     return [tl.code_at(t) for t in times], cameras, float(fps)
 
 
-def to_display(image: np.ndarray, mode: str, alpha: np.ndarray | None = None) -> np.ndarray:
-    """An (H,W,3) uint8 RGB picture of a render: colour clipped; depth (surface depth = expected depth / alpha)
-    near-bright over its range; alpha grey; latent's first three channels scaled by their range."""
-    if mode == "rgb":
-        rgb = image
-    elif mode == "depth":
-        surface = image / np.maximum(alpha, 1e-6) if alpha is not None else image
-        mask = (alpha > 0.5) if alpha is not None else image > 0
-        rgb = np.zeros(image.shape + (3,), np.float32)
-        if mask.any():
-            lo, hi = np.percentile(surface[mask], [1, 99])
-            norm = 1.0 - np.clip((surface - lo) / max(hi - lo, 1e-9), 0.0, 1.0)
-            rgb[:] = np.where(mask, 0.1 + 0.9 * norm, 0.0)[..., None]
-    elif mode == "alpha":
-        rgb = np.repeat(image[..., None], 3, axis=2)
-    else:
-        chans = image[..., :3]
-        if chans.shape[2] < 3:
-            chans = np.concatenate([chans, np.zeros(chans.shape[:2] + (3 - chans.shape[2],), np.float32)], 2)
-        lo = chans.reshape(-1, 3).min(0)
-        hi = chans.reshape(-1, 3).max(0)
-        rgb = (chans - lo) / np.maximum(hi - lo, 1e-9)
-    return (np.clip(rgb, 0.0, 1.0) * 255.0 + 0.5).astype(np.uint8)
-
-
 def inspect_settings(args) -> InspectSettings:
     """The `InspectSettings` of the command line's mode and options."""
     from npga_core.inspection.inspector import InspectSettings
@@ -276,177 +251,6 @@ def inspect_settings(args) -> InspectSettings:
     if s.direction < 0:
         raise RenderError(f"--direction {args.direction}: directions count from 1")
     return s
-
-
-def _fmt(v: float) -> str:
-    return f"{v:.3g}" if v == 0 or 1e-3 <= abs(v) < 1e4 else f"{v:.2e}"
-
-
-def _wrap(text: str, width_px: int, scale: float) -> list[str]:
-    import cv2
-
-    lines, line = [], ""
-    for word in text.split():
-        trial = f"{line} {word}".strip()
-        if line and cv2.getTextSize(trial, cv2.FONT_HERSHEY_SIMPLEX, scale, 1)[0][0] > width_px:
-            lines.append(line)
-            line = word
-        else:
-            line = trial
-    return lines + ([line] if line else [])
-
-
-def legend_strip(width: int, label: str, cmap: str | None = None, lo: float = 0.0, hi: float = 1.0,
-                 notes: tuple[str, ...] = (), height: int = LEGEND_HEIGHT) -> np.ndarray:
-    """An (height, width, 3) uint8 RGB legend: the label, then a colour bar from lo to hi with their values (when
-    `cmap` is given) or the notes as text."""
-    import cv2
-
-    from npga_core.inspection.colouring import colour_map
-
-    strip = np.full((height, width, 3), 24, np.uint8)
-    font, scale, white = cv2.FONT_HERSHEY_SIMPLEX, 0.38, (235, 235, 235)
-    y = 14
-    for line in _wrap(label, width - 16, scale)[:2]:
-        cv2.putText(strip, line, (8, y), font, scale, white, 1, cv2.LINE_AA)
-        y += 14
-    if cmap is not None:
-        bar = colour_map(np.linspace(0.0, 1.0, width - 16), cmap)
-        y0 = min(y - 6, height - 30)
-        strip[y0:y0 + 12, 8:width - 8] = (bar * 255 + 0.5).astype(np.uint8)[None]
-        ty = y0 + 26
-        cv2.putText(strip, _fmt(lo), (8, ty), font, scale, white, 1, cv2.LINE_AA)
-        mid = _fmt(0.5 * (lo + hi))
-        tw = cv2.getTextSize(mid, font, scale, 1)[0][0]
-        cv2.putText(strip, mid, ((width - tw) // 2, ty), font, scale, white, 1, cv2.LINE_AA)
-        tw = cv2.getTextSize(_fmt(hi), font, scale, 1)[0][0]
-        cv2.putText(strip, _fmt(hi), (width - 8 - tw, ty), font, scale, white, 1, cv2.LINE_AA)
-    else:
-        for note in notes:
-            for line in _wrap(note, width - 16, scale):
-                if y < height - 2:
-                    cv2.putText(strip, line, (8, y), font, scale, (190, 190, 190), 1, cv2.LINE_AA)
-                y += 14
-    return strip
-
-
-class _Frames:
-    """Renders the avatar at a code in the requested mode."""
-
-    def __init__(self, avatar, renderer, camera: Camera, args, background) -> None:
-        from npga_core.inspection.inspector import Inspector
-        from npga_core.posing.oneshot import ExactPoses
-
-        self.avatar, self.renderer, self.camera = avatar, renderer, camera
-        self.poses = ExactPoses(avatar, getattr(args, "precision", "fp32"))
-        self.source = args.timeline or args.sequence or args.expr or args.avatar  # named when a pose overflows
-        self.mode, self.background, self.legend = args.mode, background, not args.no_legend
-        self.raw_npy = str(args.out).lower().endswith(".npy")
-        self.use_cnn = not args.no_cnn and self.mode == "rgb" and avatar.cnn is not None
-        self.settings = inspect_settings(args)
-        shaping = self.settings.style != "splats" or self.settings.hist_action != "off" or self.settings.clip != "off"
-        self.inspecting = ((self.mode not in ("rgb", "alpha") or shaping)
-                           and not (self.raw_npy and self.mode in ("depth", "latent")))
-        if self.mode in ("depth", "latent"):
-            self.settings.mode = self.mode
-        self.inspector = Inspector(avatar)
-        self.counts: dict | None = None
-
-    def render(self, code: np.ndarray | None) -> tuple[np.ndarray, np.ndarray]:
-        """(raw float image, uint8 RGB picture); AvatarFileError naming `self.source` when the posed Gaussians
-        are not finite (the file's numbers overflow in the dynamics or the pose)."""
-        from npga_core.files.untrusted import finite_output
-
-        r, cam = self.renderer, self.camera
-        posed = self.poses.pose(code)
-        finite_output({k: getattr(posed, k) for k in ("means", "quats", "scales", "opacities", "sh")},
-                      self.source, "the posed Gaussians")
-        if self.inspecting:
-            return self._inspect(posed, code)
-        r.set_gaussians(posed)
-        if self.mode == "latent":
-            if r.latent_dim == 0:
-                raise RenderError("--mode latent: the avatar has no latent features")
-            image = r.render_latent(cam)
-            self._count(posed)
-            return image, to_display(image, "latent")
-        if self.mode == "depth":
-            image = r.render(cam, mode="depth")
-            self._count(posed)
-            return image, to_display(image, "depth", r.render(cam, mode="alpha"))
-        image = r.render(cam, self.background, self.mode)
-        self._count(posed)
-        if self.use_cnn:  # the window's Refiner takes the same path (npga_view/rendering/refinement.py)
-            from npga_view.cli.signals import interruptible
-            from npga_view.rendering.refinement import refine_frame
-
-            cnn = self.avatar.cnn  # on a helper thread: SIGTERM/SIGINT end a CNN of minutes at once
-            image = refine_frame(r, cnn, cam, self.background, rgb=image, runner=lambda x: interruptible(cnn.refine, x))
-        return image, to_display(image, self.mode)
-
-    def _inspect(self, posed, code) -> tuple[np.ndarray, np.ndarray]:
-        r, cam, s = self.renderer, self.camera, self.settings
-        frame = self.inspector.frame(s, posed, code, cam)
-        r.show(frame)
-        image = r.render(cam, self.background)
-        self._count(posed)
-        picture = to_display(image, "rgb")
-        c = frame.colouring
-        if c is not None and s.value_range is None and c.cmap is not None:
-            s.value_range = (c.lo, c.hi)  # later frames of a video keep the first frame's range
-        if self.legend:
-            picture = np.concatenate([picture, self._legend(frame, posed)], axis=0)
-        return image, picture
-
-    def _visibility_note(self) -> str:
-        s = self.settings
-        notes = []
-        if s.hist_action != "off":
-            lo, hi = cast(tuple[float, float], s.hist_range)  # set with the action
-            notes.append(f"{s.hist_attr} {_fmt(lo)}..{_fmt(hi)} {'only' if s.hist_action == 'filter' else 'bright'}")
-        if s.clip == "box":
-            notes.append("clipped to a box")
-        elif s.clip == "plane":
-            notes.append(f"clipped by the plane n = {_fmt(s.clip_normal[0])}, {_fmt(s.clip_normal[1])}, "
-                         f"{_fmt(s.clip_normal[2])}")
-        return "; ".join(notes)
-
-    def _legend(self, frame, posed) -> np.ndarray:
-        legend = self._legend_of(frame, posed)
-        note = self._visibility_note()
-        if note:
-            import cv2
-
-            cv2.putText(legend, note, (8, legend.shape[0] - 3), cv2.FONT_HERSHEY_SIMPLEX, 0.33, (255, 210, 80), 1,
-                        cv2.LINE_AA)
-        return legend
-
-    def _legend_of(self, frame, posed) -> np.ndarray:
-        s, w = self.settings, self.camera.width
-        if self.mode == "knn" and s.knn_show == "all":
-            from npga_core.inspection.graph import knn_edges
-
-            edges = knn_edges(self.inspector.graph(s.knn_k))
-            c = self.inspector.edge_colouring(s.knn_colour, edges, posed.means)
-            return legend_strip(w, f"{c.label}, k = {s.knn_k}, {len(edges):,} edges", c.cmap, c.lo, c.hi)
-        if self.mode == "knn":
-            return legend_strip(w, f"the {s.knn_k} nearest neighbours of Gaussian {s.picked} (canonical kNN graph)")
-        c = frame.colouring
-        if c is None:
-            if frame.style == "splats":
-                return legend_strip(w, "colour: the Gaussians' own (SH) colour")
-            what = {"points": f"points: opaque discs of {s.point_px:g} px",
-                    "ellipsoids": "ellipsoids: the 1-sigma ellipse of each Gaussian, shaded"}[frame.style]
-            return legend_strip(w, what, notes=(f"SH colour; opacity < {self.renderer.style_min_opacity:g} hidden",))
-        return legend_strip(w, c.label, c.cmap, c.lo, c.hi, c.notes)
-
-    def _count(self, posed) -> None:
-        if self.counts is None:
-            from npga_view.rendering.renderer import NEAR
-
-            c = self.inspector.counts(self.camera, posed, self.renderer.drawn_mask(), NEAR)
-            self.counts = {"total": c.total, "in_frustum": c.in_frustum, "drawn": c.drawn,
-                           "parts": {name: {"total": t, "in_frustum": f, "drawn": d} for name, t, f, d in c.parts}}
 
 
 def _write_image(path: Path, picture: np.ndarray) -> None:
@@ -530,7 +334,17 @@ def _render(args) -> int:
         raise RenderError(str(exc)) from None
     if getattr(args, "verbose", False):
         print(f"renderer: {describe(renderer)}", file=sys.stderr)
-    frames = _Frames(avatar, renderer, camera if cameras is None else cameras[0], args, background)
+    from npga_view.rendering.offscreen import OffscreenFrames
+    from npga_view.signals import interruptible
+
+    cnn = avatar.cnn  # on a helper thread: SIGTERM/SIGINT end a CNN of minutes at once
+    runner = None if cnn is None else partial(interruptible, cnn.refine)
+    frames = OffscreenFrames(avatar, renderer, camera if cameras is None else cameras[0], args.mode, background,
+                             inspect_settings(args), legend=not args.no_legend,
+                             raw_npy=str(args.out).lower().endswith(".npy"), use_cnn=not args.no_cnn,
+                             precision=getattr(args, "precision", "fp32"),
+                             source=str(args.timeline or args.sequence or args.expr or args.avatar),
+                             cnn_runner=runner)
     if getattr(args, "verbose", False) and avatar.dynamics is not None:
         print(f"exact dynamics: {frames.poses.precision}", file=sys.stderr)
     if len(avatar.cloud) == 0:
@@ -552,6 +366,8 @@ def _render(args) -> int:
     assert codes is not None  # _check_output: a video needs --sequence or --timeline
 
     # H.264 MP4 at the sequence's (or --timeline's --fps) rate; odd sizes lose their last row/column (yuv420p)
+    from npga_core.inspection.legend import LEGEND_HEIGHT
+
     legend = LEGEND_HEIGHT if frames.inspecting and frames.legend else 0
     started = time.perf_counter()
     with VideoWriter(out, camera.width, camera.height + legend, fps=float(fps)) as writer:

@@ -4,6 +4,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from npga_core.evaluation.compare import DEFAULT_VMAX
+
 
 @dataclass(frozen=True)
 class CompareInfo:
@@ -19,7 +21,7 @@ class CompareInfo:
     mode: str = "wipe"
     position: float = 0.5
     pair: str = "a-capture"
-    vmax: float = 0.25
+    vmax: float = DEFAULT_VMAX  # the heatmap's top (npga_core/evaluation/compare.py, the one heatmap)
     use_cnn: bool = True
     background: tuple[float, float, float] = (1.0, 1.0, 1.0)
     status: str = ""

@@ -11,7 +11,8 @@ outside it, as `evaluate` scores them, so the heatmap shows the error the scores
 
 The UI frame's budget is kept: capture images are read and both avatars posed (exact, as `evaluate` does) on a
 worker thread; the splats are drawn in slices (`begin_draw`/`continue_draw`) and the latent image likewise; the CNN
-(when the avatar has one and it is on) runs on its refiner's thread; composing and uploading one image is the only
+(when the avatar has one and it is on) runs on its refiner's thread, all through `rendering/pipeline.py`'s
+`ViewImage`, the pipeline of the window and the commands; composing and uploading one image is the only
 whole-image work in a frame. Scores are computed as `evaluate` computes them (same masking), on the worker.
 """
 
@@ -33,6 +34,7 @@ from npga_core.model.avatar import Avatar
 from npga_core.model.gaussians import PosedGaussians
 from npga_view.comparison.sources import CompareSources, Job, Prepared
 from npga_view.rendering.factory import create_renderer
+from npga_view.rendering.pipeline import ViewImage
 from npga_view.rendering.refinement import Refiner
 from npga_view.rendering.renderer import SplatRenderer
 
@@ -41,12 +43,16 @@ PAIRS = ("a-capture", "b-capture", "a-b")
 
 @dataclass
 class _Drawing:
-    """One avatar's image of the job being made: its stage and its image once done."""
+    """One avatar's image of the job being made: posed and uploaded ("pose"), then through the pipeline."""
 
     role: str
-    stage: str = "pose"  # pose -> splats -> latent -> cnn -> done
-    rgb: np.ndarray | None = None
+    view: ViewImage | None = None  # on its way through the one pipeline (rendering/pipeline.py)
     image: np.ndarray | None = None
+
+    @property
+    def stage(self) -> str:
+        """pose -> splats -> latent -> cnn -> done"""
+        return "done" if self.image is not None else "pose" if self.view is None else self.view.stage
 
 
 @dataclass
@@ -142,9 +148,9 @@ class CompareView:
     def _start(self, job: Job) -> None:
         self._cancel.set()
         self._cancel = threading.Event()
-        for r in self._renderers.values():
-            r.cancel_draw()
-            r.cancel_latent()
+        for d in self._drawings.values():
+            if d.view is not None:
+                d.view.cancel()
         for f in self._refiners.values():
             f.cancel()
         self._job, self._prepared, self._drawings, self._composed_key = job, None, {}, None
@@ -173,49 +179,25 @@ class CompareView:
         return f
 
     def _draw(self, budget_ms: float) -> bool:
-        """Draw the next unfinished avatar image for the budget; True when one finished."""
+        """Advance the next unfinished avatar image by the budget (`ViewImage`: the splats in slices, the latent
+        pass in slices, the CNN on the role's refiner thread when the avatar has one and it is on)."""
         prep, job = self._prepared, self._job
         assert prep is not None and job is not None
         for role, d in self._drawings.items():
-            if d.stage == "done":
+            if d.image is not None:
                 continue
-            r = self._renderer(role, job.camera)
-            avatar = prep.avatars[role]
-            if d.stage == "pose":
+            if d.view is None:
+                r = self._renderer(role, job.camera)
                 if self._uploaded.get(role) is not prep.posed[role]:
                     r.set_gaussians(prep.posed[role])
                     self._uploaded[role] = prep.posed[role]
-                r.begin_draw(job.camera)
-                d.stage = "splats"
-            if d.stage == "splats":
-                if not r.continue_draw(budget_ms):
-                    return False
-                d.rgb = _read_front(self.ctx, r, job.camera, job.background)
+                avatar = prep.avatars[role]
                 refiner = self._refiner(role, avatar) if job.use_cnn and avatar.cnn is not None else None
-                if refiner is None or not refiner.has_cnn:
-                    d.image, d.stage = d.rgb, "done"
-                    continue
-                if refiner.wants_full_latent:
-                    r.begin_latent(job.camera)
-                    d.stage = "latent"
-                    return False
-                refiner.submit(job.key + (role,), r, job.camera, job.background, rgb=d.rgb)
-                d.stage = "cnn"
-            if d.stage == "latent":
-                latent = r.continue_latent(budget_ms)
-                if latent is None:
-                    if not r.latent_drawing:
-                        r.begin_latent(job.camera)
-                    return False
-                self._refiners[role].submit(job.key + (role,), r, job.camera, job.background, rgb=d.rgb,
-                                            latent=latent)
-                d.stage = "cnn"
+                d.view = ViewImage(r, job.camera, job.background, refiner if refiner and refiner.has_cnn else None,
+                                   job.key + (role,))
+            if not d.view.advance(budget_ms):
                 return False
-            if d.stage == "cnn":
-                out = self._refiners[role].result(job.key + (role,))
-                if out is None:
-                    return False
-                d.image, d.stage = np.clip(out, 0.0, 1.0), "done"
+            d.image = d.view.image
         return False
 
     def _images(self) -> dict[str, np.ndarray]:
@@ -320,16 +302,3 @@ class CompareView:
             self._presenter.release()
         self._renderers, self._refiners, self._presenter, self._uploaded, self._refined = {}, {}, None, {}, {}
 
-
-def _read_front(ctx: moderngl.Context, renderer: SplatRenderer, camera: Camera, background) -> np.ndarray:
-    """The renderer's finished image over `background`, (H, W, 3) float32 rows top to bottom, through its public
-    `present` into an offscreen float target."""
-    tex = ctx.texture((camera.width, camera.height), 4, dtype="f4")
-    fbo = ctx.framebuffer([tex])
-    try:
-        renderer.present(fbo, background, flip_y=False, viewport=(0, 0, camera.width, camera.height))
-        data = fbo.read(viewport=(0, 0, camera.width, camera.height), components=4, dtype="f4")
-    finally:
-        fbo.release()
-        tex.release()
-    return np.frombuffer(data, np.float32).reshape(camera.height, camera.width, 4)[..., :3].copy()

@@ -22,7 +22,7 @@ import numpy as np
 from npga_core.files.arkit_takes import head_pose
 from npga_core.files.blendshape_names import ARKIT_52, NameMatch, match_names
 from npga_core.posing.livelink import DEFAULT_PORT, LiveLinkReceiver
-from npga_core.posing.smoothing import OneEuro
+from npga_core.posing.smoothing import Smoothing, SmoothingFilter
 
 if TYPE_CHECKING:
     from npga_core.model.avatar import Avatar
@@ -63,9 +63,7 @@ class LiveLinkController:
         self.taken = 0  # packets turned into codes (at most one per UI frame)
         self._last_arrival = -math.inf
         self._match: tuple[int, NameMatch] | None = None
-        self._smooth_key: tuple | None = None
-        self._euro: OneEuro | None = None
-        self._exp: np.ndarray | None = None
+        self._filter: SmoothingFilter | None = None  # the Timeline's smoothing, one packet at a time
 
     # ------------------------------------------------------------------------------------ listening
     @property
@@ -89,7 +87,7 @@ class LiveLinkController:
         self.unmatched = match_names(ARKIT_52, basis.names).report() if basis is not None else ""
         self.status = f"listening on {self.receiver.address[0]}:{self.receiver.address[1]}"
         self.code, self.last_packet_t, self.taken = None, None, 0
-        self._smooth_key = None
+        self._filter = None
         st.follow_sequence = False
         return True
 
@@ -147,20 +145,12 @@ class LiveLinkController:
         self.taken += 1
 
     def _smooth(self, code: np.ndarray, dt: float) -> np.ndarray:
-        """The Timeline panel's smoothing, one sample at a time (reset when its settings change)."""
-        tl = self.host.state.timeline
-        key = (tl.smoothing, tl.smooth_alpha, tl.euro_min_cutoff, tl.euro_beta, code.shape)
-        if key != self._smooth_key:
-            self._smooth_key = key
-            self._euro = OneEuro(max(tl.euro_min_cutoff, 1e-6), max(tl.euro_beta, 0.0))
-            self._exp = None
-        if tl.smoothing == "one_euro":
-            return cast(OneEuro, self._euro).step(code, dt if dt > 0 else 1 / 60)
-        if tl.smoothing == "exponential":
-            a = float(np.clip(tl.smooth_alpha, 1e-3, 1.0))
-            self._exp = code.copy() if self._exp is None else a * code + (1 - a) * self._exp
-            return self._exp.astype(np.float32)
-        return code
+        """The Timeline panel's smoothing (the filter sequences are smoothed with), one sample at a time; it
+        starts afresh when its settings change."""
+        settings = Smoothing.of(self.host.state.timeline)
+        if self._filter is None or self._filter.settings != settings:
+            self._filter = SmoothingFilter(settings)
+        return self._filter.step(code, dt)
 
     def head_transform(self) -> np.ndarray | None:
         """The live head pose to apply to the view (None when not listening or no head angles came)."""
@@ -187,7 +177,7 @@ class LiveLinkController:
     def neutral(self) -> None:
         if self.receiver is None or not self.receiver.capture_neutral():
             raise ValueError("Live Link: no packet yet to take as the neutral")
-        self._smooth_key = None
+        self._filter = None
 
     def set_gain(self, name: str, gain: float) -> None:
         if self.receiver is not None:

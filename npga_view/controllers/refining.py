@@ -19,6 +19,7 @@ import numpy as np
 from npga_core.camera.cameras import Camera
 from npga_core.model.avatar import Avatar
 from npga_view.panels.info import AppInfo
+from npga_view.rendering.pipeline import ViewImage
 from npga_view.rendering.refinement import Refiner
 from npga_view.rendering.renderer import SplatRenderer
 from npga_view.rendering.scheduler import DrawScheduler
@@ -39,6 +40,7 @@ class RefineController:
         self._key: tuple | None = None  # what the uploaded refined/latent image shows
         self._latent_for: tuple | None = None  # what the latent image being drawn in slices is for
         self._latent: np.ndarray | None = None  # that latent image once finished
+        self._view: ViewImage | None = None  # the refined image of the view on its way (the one pipeline)
 
     def set_avatar(self, avatar: Avatar | None) -> None:
         """A new avatar (or an edited one): take its CNN and latent statistics."""
@@ -90,14 +92,6 @@ class RefineController:
         self._set_shown(what)
         return True
 
-    def _front(self) -> np.ndarray:
-        """The finished splat image on screen: premultiplied RGBA, rows top to bottom."""
-        r = self.renderer
-        w, h = r.image_size
-        fbo = r._fbo
-        assert fbo is not None  # a splat image is on screen
-        return r._read(fbo, 0, w, h)
-
     @property
     def complete(self) -> bool:
         """The image on screen is what the state asks for: the refined or latent image once it is ready, or the
@@ -113,6 +107,9 @@ class RefineController:
         if self._latent_for is not None:
             self.renderer.cancel_latent()
         self._latent_for = self._latent = None
+        if self._view is not None:
+            self._view.cancel()
+            self._view = None
 
     def _latent_image(self, key: tuple, camera: Camera) -> np.ndarray | None:
         """The latent image of the view, drawn in slices within the scheduler's budget over UI frames (the whole
@@ -137,25 +134,25 @@ class RefineController:
                 latent = self._latent_image(key, camera)
                 if latent is None:
                     return False
-                alpha = self._front()[..., 3]
+                alpha = self.renderer.front_rgba()[..., 3]
                 image = refiner.latent_view(self.renderer, camera, bg, self.state.latent_view,
                                             self.state.latent_channel, alpha=alpha, latent=latent)
                 self._drop_latent()
             else:
-                if refiner.pending_key() != key:
-                    full = refiner.wants_full_latent  # an upsampling CNN's smaller latent image is drawn by submit
-                    latent = self._latent_image(key, camera) if full else None
-                    if full and latent is None:
-                        return False
-                    front = self._front()
-                    rgb = front[..., :3] + (1.0 - front[..., 3:4]) * np.asarray(bg, np.float32)
-                    refiner.submit(key, self.renderer, camera, bg, rgb=rgb, latent=latent)
-                    self._drop_latent()
+                view = self._view
+                if view is None or view.key != key or (view.stage == "cnn" and refiner.pending_key() != key):
+                    self._drop_latent()  # a new view (or its CNN job was cancelled): from the splat image on screen
+                    rgb = self.renderer.front_image(bg)
+                    view = self._view = ViewImage(self.renderer, camera, bg, refiner, key, rgb)
+                t0 = time.perf_counter()
+                stage = view.stage
+                done = view.advance(self.draws.frame_budget(False))
+                if stage == "latent":  # the latent pass in slices within the frame's budget
+                    self.draws.drew_outside((time.perf_counter() - t0) * 1e3)
+                if not done:
                     return False
-                result = refiner.result(key)
-                if result is None:
-                    return False
-                image = result
+                image = cast(np.ndarray, view.image)
+                self._view = None
                 info.cnn_ms = refiner.last_timings.get("cnn", 0.0)
                 info.timings["cnn"] = info.cnn_ms
         except (ValueError, RuntimeError) as e:

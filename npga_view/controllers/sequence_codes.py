@@ -8,7 +8,7 @@ from collections.abc import Callable
 import numpy as np
 
 from npga_core.files.sequences import ExpressionSequence
-from npga_core.posing.smoothing import jitter, smooth
+from npga_core.posing.smoothing import Smoothing, SmoothingFilter, jitter
 from npga_view.state import ViewerState
 
 
@@ -32,9 +32,10 @@ class SequenceCodes:
         tl, seq = self._state.timeline, self._sequence()
         if seq is None:
             raise ValueError("no sequence is open")
-        key = (id(seq), tl.smoothing, tl.smooth_alpha, tl.euro_min_cutoff, tl.euro_beta)
+        settings = Smoothing.of(tl)
+        key = (id(seq), settings)
         if key != self.smooth_key or self.codes is None:
-            self.codes = smooth(seq.codes, tl.smoothing, seq.fps, tl.smooth_alpha, tl.euro_min_cutoff, tl.euro_beta)
+            self.codes = SmoothingFilter(settings).run(seq.codes, seq.fps)
             self.jitter_raw = jitter(seq.codes)
             self.jitter_smoothed = jitter(self.codes)
             self.smooth_key = key

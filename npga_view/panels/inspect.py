@@ -39,6 +39,7 @@ from npga_core.inspection.inspector import (
     InspectSettings,
     parse_mode,
 )
+from npga_core.inspection.legend import format_value
 from npga_core.inspection.measures import SCALE_MEASURES
 from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
@@ -65,10 +66,6 @@ def _u32(rgb) -> int:
 
 
 _Vec3 = tuple[float, float, float]
-
-
-def _fmt(v: float) -> str:
-    return f"{v:.3g}" if v == 0 or 1e-3 <= abs(v) < 1e4 else f"{v:.2e}"
 
 
 def _draw(state: ViewerState, info: AppInfo) -> None:
@@ -168,12 +165,12 @@ def _legend(c: Colouring, s: InspectSettings) -> None:
         dl.add_rect_filled_multi_color(imgui.ImVec2(x0, p.y), imgui.ImVec2(x1, p.y + height), left, right, right,
                                        left)
     imgui.dummy(imgui.ImVec2(width, height))
-    imgui.text(_fmt(c.lo))
-    mid = _fmt(0.5 * (c.lo + c.hi))
+    imgui.text(format_value(c.lo))
+    mid = format_value(0.5 * (c.lo + c.hi))
     imgui.same_line(max(width / 2 - imgui.calc_text_size(mid).x / 2, 40))
     imgui.text(mid)
-    imgui.same_line(max(width - imgui.calc_text_size(_fmt(c.hi)).x, 80))
-    imgui.text(_fmt(c.hi))
+    imgui.same_line(max(width - imgui.calc_text_size(format_value(c.hi)).x, 80))
+    imgui.text(format_value(c.hi))
     fixed = s.value_range is not None
     changed, fixed = imgui.checkbox("Fix range", fixed)
     if changed:
@@ -215,7 +212,7 @@ def _histogram(s: InspectSettings, ii: InspectInfo | None, a, info: AppInfo) -> 
     x1 = p0.x + (p1.x - p0.x) * np.clip((hi - lo_all) / span, 0, 1)
     imgui.get_window_draw_list().add_rect_filled(imgui.ImVec2(x0, p0.y), imgui.ImVec2(x1, p1.y),
                                                  imgui.color_convert_float4_to_u32(imgui.ImVec4(1, 0.85, 0.1, 0.25)))
-    imgui.text_disabled(f"{_fmt(lo_all)} .. {_fmt(hi_all)}")
+    imgui.text_disabled(f"{format_value(lo_all)} .. {format_value(hi_all)}")
     changed, lo, hi = imgui.drag_float_range2("Range##hist", lo, hi, span / 300.0, lo_all, hi_all, "%.4g")
     remember(info, "inspect_hist_range")
     if changed:
@@ -283,7 +280,7 @@ def _picked(s: InspectSettings, ii: InspectInfo | None, state: ViewerState, info
 
 def _vec(v, limit: int = 12) -> str:
     flat = np.ravel(v)
-    text = ", ".join(_fmt(float(x)) for x in flat[:limit])
+    text = ", ".join(format_value(float(x)) for x in flat[:limit])
     return f"({text}{f', ... {len(flat)} values' if len(flat) > limit else ''})"
 
 
@@ -302,7 +299,7 @@ def _record(rec: dict, s: InspectSettings) -> None:
             imgui.table_next_column()
             for side in ("canonical", "posed"):
                 value = rec[side][key]
-                imgui.text(_fmt(cast(float, value)) if np.isscalar(value) else _vec(value))
+                imgui.text(format_value(cast(float, value)) if np.isscalar(value) else _vec(value))
         imgui.end_table()
     imgui.push_text_wrap_pos(0)
     imgui.text(f"f: {_vec(rec['features'])}")
@@ -314,7 +311,7 @@ def _record(rec: dict, s: InspectSettings) -> None:
     imgui.pop_text_wrap_pos()
     imgui.text(f"{len(rec['neighbours'])} nearest neighbours (canonical distance):")
     for j, dist in rec["neighbours"]:
-        if imgui.selectable(f"  {j}  ({_fmt(dist)})##nb{j}", False)[0]:
+        if imgui.selectable(f"  {j}  ({format_value(dist)})##nb{j}", False)[0]:
             s.picked = j
 
 

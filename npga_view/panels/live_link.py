@@ -10,9 +10,8 @@ from npga_core.files.blendshape_names import ARKIT_52
 from npga_core.posing.livelink import DEFAULT_PORT
 from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
+from npga_view.panels.smoothing import smoothing_widget
 from npga_view.state import ViewerState
-
-SMOOTHING = ("none", "exponential", "one_euro")
 
 
 class LiveLinkPanel:
@@ -53,7 +52,7 @@ class LiveLinkPanel:
             _, state.timeline.head_pose = imgui.checkbox("Head pose##live", state.timeline.head_pose)
             if imgui.is_item_hovered():
                 imgui.set_tooltip("Move the head by the stream's head yaw, pitch and roll (relative to the neutral)")
-            self._smoothing(state)
+            smoothing_widget(state.timeline, "##live", width=150)
             self._gains(state)
         if self.recorded and not info.live_recording:
             if imgui.button(f"Open {self.recorded}"):
@@ -73,20 +72,6 @@ class LiveLinkPanel:
         imgui.set_next_item_width(160)
         _, self.take_path = imgui.input_text("##live_take", self.take_path)
         remember(info, "live_take_path")
-
-    @staticmethod
-    def _smoothing(state: ViewerState) -> None:
-        tl = state.timeline
-        idx = SMOOTHING.index(tl.smoothing) if tl.smoothing in SMOOTHING else 0
-        imgui.set_next_item_width(150)
-        changed, idx = imgui.combo("Smoothing##live", idx, list(SMOOTHING))
-        if changed:
-            tl.smoothing = SMOOTHING[idx]
-        if tl.smoothing == "exponential":
-            _, tl.smooth_alpha = imgui.slider_float("Alpha##live", tl.smooth_alpha, 0.05, 1.0)
-        elif tl.smoothing == "one_euro":
-            _, tl.euro_min_cutoff = imgui.slider_float("Min cutoff (Hz)##live", tl.euro_min_cutoff, 0.05, 10.0)
-            _, tl.euro_beta = imgui.slider_float("Beta##live", tl.euro_beta, 0.0, 5.0)
 
     def _gains(self, state: ViewerState) -> None:
         if not imgui.tree_node("Gains"):

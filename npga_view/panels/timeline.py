@@ -13,9 +13,8 @@ from npga_core.posing.headpose import has_head_pose, pose_description
 from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
 from npga_view.panels.live_link import LiveLinkPanel
+from npga_view.panels.smoothing import smoothing_widget
 from npga_view.state import ViewerState
-
-SMOOTHING = ("none", "exponential", "one_euro")
 
 
 def _draw(state: ViewerState, info: AppInfo) -> None:
@@ -46,15 +45,7 @@ def _draw(state: ViewerState, info: AppInfo) -> None:
     imgui.text(f"frame {info.frame + 1}/{n}   {tl.time_s:6.2f} s / {seq.duration:.2f} s   @ {seq.fps:g} fps")
     _, tl.speed = imgui.slider_float("Speed", tl.speed, 0.1, 4.0, "%.2fx")
     imgui.text(f"achieved {info.achieved_fps:5.1f} frames/s, skipped {info.skipped}")
-    idx = SMOOTHING.index(tl.smoothing) if tl.smoothing in SMOOTHING else 0
-    changed, idx = imgui.combo("Smoothing", idx, list(SMOOTHING))
-    if changed:
-        tl.smoothing = SMOOTHING[idx]
-    if tl.smoothing == "exponential":
-        _, tl.smooth_alpha = imgui.slider_float("Alpha", tl.smooth_alpha, 0.05, 1.0)
-    elif tl.smoothing == "one_euro":
-        _, tl.euro_min_cutoff = imgui.slider_float("Min cutoff (Hz)", tl.euro_min_cutoff, 0.05, 10.0)
-        _, tl.euro_beta = imgui.slider_float("Beta", tl.euro_beta, 0.0, 5.0)
+    smoothing_widget(tl)
     imgui.text(f"jitter: raw {info.jitter_raw:.4f}, smoothed {info.jitter_smoothed:.4f}")
     if has_head_pose(seq):
         _, tl.head_pose = imgui.checkbox("Head pose", tl.head_pose)

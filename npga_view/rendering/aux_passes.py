@@ -17,6 +17,7 @@ import numpy as np
 
 from npga_core.camera.cameras import Camera
 from npga_view.rendering.lines import LinePass, Lines
+from npga_view.rendering.uniforms import uniform
 
 if TYPE_CHECKING:
     from collections.abc import Mapping
@@ -160,9 +161,9 @@ class AuxiliaryPasses:
             self._begin_pass(fbo, (0, 0, w, h))
             if job.next == 0:
                 fbo.clear(0.0, 0.0, 0.0, 0.0)
-            prog["u_viewport"].value = (float(w), float(h))  # type: ignore[union-attr]
-            prog["u_latent_dim"].value = self._latent_dim  # type: ignore[union-attr]
-            prog["u_first_channel"].value = first  # type: ignore[union-attr]
+            uniform(prog, "u_viewport").value = (float(w), float(h))
+            uniform(prog, "u_latent_dim").value = self._latent_dim
+            uniform(prog, "u_first_channel").value = first
             self._bind_splats(prog)
             self._bind_latent(prog)
             while job.next < self._visible:
@@ -170,7 +171,7 @@ class AuxiliaryPasses:
                     return None
                 count = self._visible - job.next if math.isinf(budget_ms) else min(self._visible - job.next, job.slice)
                 t0 = time.perf_counter()
-                prog["u_first"].value = job.next  # type: ignore[union-attr]
+                uniform(prog, "u_first").value = job.next
                 vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
                 if not math.isinf(budget_ms):  # a software GL renders lazily: time the slice itself
                     self.ctx.finish()
@@ -227,8 +228,8 @@ class AuxiliaryPasses:
             return
         prog = self._id_prog
         self._set_style(prog, camera)
-        prog["u_threshold"].value = float(threshold)  # type: ignore[union-attr]
-        prog["u_first"].value = 0  # type: ignore[union-attr]
+        uniform(prog, "u_threshold").value = float(threshold)
+        uniform(prog, "u_first").value = 0
         self._bind_splats(prog)
         fbo.scissor = scissor  # type: ignore[assignment]
         try:

@@ -14,6 +14,7 @@ import moderngl
 import numpy as np
 
 from npga_core.camera.cameras import Camera
+from npga_view.rendering.uniforms import mat4_bytes, uniform
 
 
 def pack_rgba8(colours: np.ndarray) -> np.ndarray:
@@ -90,9 +91,8 @@ class LinePass:
         """Blend the lines into the current framebuffer (viewport and blend state set by the caller)."""
         if not self._edges:
             return
-        self._prog["u_view"].write(np.ascontiguousarray(camera.world_to_camera.astype(np.float32).T).tobytes())  # type: ignore[union-attr]
-        proj = camera.opengl_projection(near, far, flip_y).astype(np.float32)
-        self._prog["u_proj"].write(np.ascontiguousarray(proj.T).tobytes())  # type: ignore[union-attr]
+        uniform(self._prog, "u_view").write(mat4_bytes(camera.world_to_camera))
+        uniform(self._prog, "u_proj").write(mat4_bytes(camera.opengl_projection(near, far, flip_y)))
         self._buffers["positions"].bind_to_storage_buffer(6)
         self._buffers["edges"].bind_to_storage_buffer(7)
         self._buffers["colours"].bind_to_storage_buffer(8)

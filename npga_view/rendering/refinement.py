@@ -3,14 +3,15 @@
 The paper's final image is not the splats alone: the posed Gaussians are rasterised into an RGB image and a
 latent image of h + delta_h^G, and the screen-space CNN turns both into the picture (`npga_core/model/cnn.py`).
 
-- `refine_frame` is the one code path of that step, shared by `npga-view render` and the window: the RGB
-  image C + (1 - A) bg (the splats over the background), the latent pass (`SplatRenderer.render_latent`), the
-  CNN (`ScreenCNN.refine`, on the device its weights are on), clamped to [0, 1].
-- `Refiner` is what the window uses: it keeps a copy of the avatar's CNN on a torch device (a GPU when one is
-  given), produces the refined image (`refine`, or `submit` + `result` to run the CNN on a worker thread while
-  the UI keeps drawing), the latent views (`latent_view`: PCA of h as RGB, or one channel through a colour
-  map), decides from the viewer state what to show (`image_for`), and uploads and presents an image
-  (`upload`, `present`). `last_timings` holds the milliseconds of each stage ("latent", "cnn", ...).
+The stages of that picture (splats, latent pass, the CNN's input and output) are those of
+`npga_view/rendering/pipeline.py`, the one pipeline of the window, Compare and the commands.
+
+- `Refiner` is what the window and Compare use: it keeps a copy of the avatar's CNN on a torch device (a GPU when
+  one is given) and is the pipeline's CNN step (`start` + `result`: the CNN on a worker thread while the UI keeps
+  drawing; `submit` makes the input and starts; `refine` does all at once); it makes the latent views
+  (`latent_view`: PCA of h as RGB, or one channel through a colour map), decides from the viewer state what to
+  show (`image_for`), and uploads and presents an image (`upload`, `present`). `last_timings` holds the
+  milliseconds of each stage ("latent", "cnn", ...).
 
 Avatars without a CNN are not touched: `image_for` returns None (unless a latent view of their h is asked for)
 and the window draws the splats as before.
@@ -35,7 +36,9 @@ from npga_core.inspection.colouring import FeaturePCA, colour_map, robust_range
 from npga_core.model.cnn import ScreenCNN, run_cnn, run_cnn_steps
 from npga_core.posing.device import resolve_device
 from npga_view.rendering.factory import choose_path
+from npga_view.rendering.pipeline import cnn_input, fit_output, refine_frame, wants_full_latent
 from npga_view.rendering.renderer import load_shader
+from npga_view.rendering.uniforms import uniform
 
 if TYPE_CHECKING:
     from npga_core.model.avatar import Avatar
@@ -43,63 +46,6 @@ if TYPE_CHECKING:
 
 #: Values of `ViewerState.latent_view`: the colour image, PCA of h as RGB, or one channel of h.
 LATENT_VIEWS = ("off", "pca", "channel")
-
-
-def cnn_camera(camera: Camera, upsample: int) -> Camera:
-    """The camera of a CNN's input image: `camera`'s view with intrinsics divided by the CNN's upsampling factor
-    (pixel centres at +0.5 on both grids), the size rounded up so that the output covers the whole image."""
-    if upsample == 1:
-        return camera
-    w, h = -(-camera.width // upsample), -(-camera.height // upsample)
-    return Camera(camera.world_to_camera.copy(), camera.fx / upsample, camera.fy / upsample, camera.cx / upsample,
-                  camera.cy / upsample, w, h)
-
-
-def cnn_input(renderer: SplatRenderer, cnn: ScreenCNN, camera: Camera, background=(0.0, 0.0, 0.0),
-              rgb: np.ndarray | None = None, latent: np.ndarray | None = None) -> np.ndarray:
-    """The CNN's input image of `camera`'s view: [rgb, latent] at the camera's size, or (a CNN on the latent
-    channels alone, e.g. Gaussian-Head-Avatar's) the latent channels over their background at the CNN's input
-    size (`cnn_camera`). `rgb` and `latent` are used when the caller has them for this camera."""
-    cfg = cnn.config
-    if cfg.in_channels != cfg.input_channels(renderer.latent_dim):
-        raise ValueError(f"the CNN takes {cfg.in_channels} channels, the avatar renders "
-                         f"{cfg.input_channels(renderer.latent_dim)}")
-    if cfg.input == "latent":
-        small = cnn_camera(camera, cfg.upsample)
-        lat = latent if latent is not None and small is camera else renderer.render_latent(small)
-        alpha = renderer.render(small, mode="alpha") if cfg.latent_background else None
-        return cnn.assemble(None, lat, alpha)
-    if rgb is None:
-        rgb = renderer.render(camera, background)
-    if renderer.latent_dim and latent is None:
-        latent = renderer.render_latent(camera)
-    return cnn.assemble(rgb, latent, None)
-
-
-def fit_output(image: np.ndarray, camera: Camera) -> np.ndarray:
-    """A CNN's output cut to the camera's size (an upsampling CNN's input size was rounded up)."""
-    return image if image.shape[:2] == (camera.height, camera.width) else \
-        np.ascontiguousarray(image[: camera.height, : camera.width])
-
-
-def refine_frame(renderer: SplatRenderer, cnn: ScreenCNN, camera: Camera, background=(0.0, 0.0, 0.0),
-                 rgb: np.ndarray | None = None, timings: dict[str, float] | None = None,
-                 runner: Callable[[np.ndarray], np.ndarray] | None = None) -> np.ndarray:
-    """The CNN-refined RGB image (H, W, 3) float32 of the Gaussians uploaded to `renderer`, seen by `camera`.
-
-    `rgb` is the renderer's colour image over `background` for this camera if the caller has it already (it is
-    rendered otherwise when the CNN takes it). The CNN gets `cnn_input` (FORMAT.md section 7) and its output is
-    clamped to [0, 1]. `runner` runs the CNN on that image (default `cnn.refine`; the window passes a traced copy
-    on its device). Milliseconds of the stages go to `timings` ("latent": the passes, "cnn").
-    """
-    t = timings if timings is not None else {}
-    t1 = time.perf_counter()
-    image = cnn_input(renderer, cnn, camera, background, rgb)
-    t2 = time.perf_counter()
-    out = fit_output((runner or cnn.refine)(image), camera)
-    t["latent"] = (t2 - t1) * 1e3
-    t["cnn"] = (time.perf_counter() - t2) * 1e3
-    return out
 
 
 def _traced_copy(cnn: ScreenCNN, channels: int, device: torch.device) -> torch.nn.Module:
@@ -208,7 +154,7 @@ class Refiner:
     def wants_full_latent(self) -> bool:
         """The CNN takes the latent image at the view's own size (the window then draws it in slices); a CNN
         that upsamples takes a smaller one, which `submit` draws itself."""
-        return self.cnn is not None and self.latent_dim > 0 and self.cnn.config.upsample == 1
+        return self.cnn is not None and wants_full_latent(self.cnn, self.latent_dim)
 
     def shows(self, use_cnn: bool, latent_view: str, mode: str = "rgb") -> str | None:
         """What the window should show for these state values: "refined", "latent" or None (the raw splats, as
@@ -296,10 +242,16 @@ class Refiner:
         if renderer.latent_dim != self.latent_dim:
             raise ValueError(f"the uploaded Gaussians have {renderer.latent_dim} latent channels, the avatar "
                              f"{self.latent_dim}")
-        timings: dict[str, float] = {}
         t1 = time.perf_counter()
         image = cnn_input(renderer, self.cnn, camera, background, rgb, latent)
-        timings["latent"] = (time.perf_counter() - t1) * 1e3
+        self.start(key, image, camera, {"latent": (time.perf_counter() - t1) * 1e3})
+
+    def start(self, key: object, image: np.ndarray, camera: Camera, timings: dict[str, float] | None = None) -> None:
+        """Run the CNN on its input `image` (`pipeline.cnn_input`) on the worker thread: the pipeline's CNN step
+        (`result(key)` gives its output cut to `camera`). A new start replaces an unfinished one."""
+        if self.cnn is None:
+            raise ValueError("the avatar has no CNN for its latent features")
+        timings = dict(timings or {})
         if self._pool is None:
             self._pool = ThreadPoolExecutor(max_workers=1, thread_name_prefix="npga-cnn")
         traced, device = self._traced, self.device
@@ -393,9 +345,9 @@ class Refiner:
         scaled = self._texture.size != (vp[2], vp[3])
         self._texture.filter = (moderngl.LINEAR, moderngl.LINEAR) if scaled else (moderngl.NEAREST, moderngl.NEAREST)
         self._texture.use(0)
-        self._program["u_image"].value = 0  # type: ignore[union-attr]
-        self._program["u_background"].value = (0.0, 0.0, 0.0)  # type: ignore[union-attr]
-        self._program["u_flip_y"].value = 1 if flip_y else 0  # type: ignore[union-attr]
+        uniform(self._program, "u_image").value = 0
+        uniform(self._program, "u_background").value = (0.0, 0.0, 0.0)
+        uniform(self._program, "u_flip_y").value = 1 if flip_y else 0
         self._vao.render(moderngl.TRIANGLES, vertices=3)
 
     def release(self) -> None:

@@ -70,6 +70,7 @@ from npga_view.rendering.drawcost import PathCosts
 from npga_view.rendering.lines import Lines
 from npga_view.rendering.slice_cost import SliceCost, footprints
 from npga_view.rendering.sorting import sort_back_to_front, view_depths
+from npga_view.rendering.uniforms import mat4_bytes, uniform
 
 #: The GLSL sources: the repository's shaders/, installed as the package data `npga_view.shaders`.
 SHADER_DIR = Path(str(importlib.resources.files("npga_view.shaders")))
@@ -113,11 +114,6 @@ def camera_key(camera: Camera) -> tuple:
     """What a drawn image depends on of a camera."""
     return (camera.world_to_camera.tobytes(), camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
             camera.height)
-
-
-def _mat4_uniform(m: np.ndarray) -> bytes:
-    """Column-major float32 bytes of a row-major 4x4 matrix, as GLSL mat4 uniforms expect."""
-    return np.ascontiguousarray(np.asarray(m, dtype=np.float32).T).tobytes()
 
 
 class SplatRenderer(AuxiliaryPasses):
@@ -372,8 +368,8 @@ class SplatRenderer(AuxiliaryPasses):
         t2 = time.perf_counter()
         prog = self._preprocess
         assert prog is not None
-        prog["u_view"].write(_mat4_uniform(camera.world_to_camera))  # type: ignore[union-attr]
-        prog["u_proj"].write(_mat4_uniform(camera.opengl_projection(NEAR, 1000.0, flip_y)))  # type: ignore[union-attr]
+        uniform(prog, "u_view").write(mat4_bytes(camera.world_to_camera))
+        uniform(prog, "u_proj").write(mat4_bytes(camera.opengl_projection(NEAR, 1000.0, flip_y)))
         prog["u_viewport"].value = (float(camera.width), float(camera.height))
         prog["u_focal"].value = (camera.fx, camera.fy)
         prog["u_tan_fov"].value = (camera.tan_half_fov_x, camera.tan_half_fov_y)
@@ -519,10 +515,10 @@ class SplatRenderer(AuxiliaryPasses):
             self.ctx.enable(moderngl.PROGRAM_POINT_SIZE)
             prog = self._points_prog
             self._bind_splats(prog)
-            prog["u_viewport"].value = (float(job.width), float(job.height))  # type: ignore[union-attr]
-            prog["u_guard"].value = float(guard)  # type: ignore[union-attr]
-            prog["u_first"].value = first  # type: ignore[union-attr]
-            prog["u_mode"].value = 1 if job.mode == "depth" else 0  # type: ignore[union-attr]
+            uniform(prog, "u_viewport").value = (float(job.width), float(job.height))
+            uniform(prog, "u_guard").value = float(guard)
+            uniform(prog, "u_first").value = first
+            uniform(prog, "u_mode").value = 1 if job.mode == "depth" else 0
             self._points_vao.render(moderngl.POINTS, vertices=count)
             self.ctx.disable(moderngl.PROGRAM_POINT_SIZE)
         else:
@@ -530,8 +526,8 @@ class SplatRenderer(AuxiliaryPasses):
             prog, vao = (self._splat_prog, self._splat_vao) if self.style == "splats" else self._styled_program()
             self._bind_splats(prog)
             self._set_style(prog, camera)
-            prog["u_first"].value = first  # type: ignore[union-attr]
-            prog["u_mode"].value = 1 if job.mode == "depth" else 0  # type: ignore[union-attr]
+            uniform(prog, "u_first").value = first
+            uniform(prog, "u_mode").value = 1 if job.mode == "depth" else 0
             vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
 
     def _styled_program(self) -> tuple[moderngl.Program, moderngl.VertexArray]:
@@ -544,10 +540,10 @@ class SplatRenderer(AuxiliaryPasses):
     def _set_style(self, prog: moderngl.Program, camera: Camera) -> None:
         if self.style not in STYLES:
             raise ValueError(f"unknown style {self.style!r}; choose from {', '.join(STYLES)}")
-        prog["u_viewport"].value = (float(camera.width), float(camera.height))  # type: ignore[union-attr]
-        prog["u_style"].value = STYLES.index(self.style)  # type: ignore[union-attr]
-        prog["u_point_px"].value = float(self.point_px)  # type: ignore[union-attr]
-        prog["u_min_opacity"].value = float(self.style_min_opacity)  # type: ignore[union-attr]
+        uniform(prog, "u_viewport").value = (float(camera.width), float(camera.height))
+        uniform(prog, "u_style").value = STYLES.index(self.style)
+        uniform(prog, "u_point_px").value = float(self.point_px)
+        uniform(prog, "u_min_opacity").value = float(self.style_min_opacity)
 
     def _read(self, fbo: moderngl.Framebuffer, attachment: int, width: int, height: int) -> np.ndarray:
         data = fbo.read(viewport=(0, 0, width, height), components=4, dtype="f4", attachment=attachment)
@@ -561,18 +557,25 @@ class SplatRenderer(AuxiliaryPasses):
         """
         self.draw(camera, mode)
         t0 = time.perf_counter()
-        front = self._fbo
-        assert front is not None
-        image = self._read(front, 0, camera.width, camera.height)
         if mode == "rgb":
-            bg = np.asarray(background, dtype=np.float32).reshape(3)
-            out = image[..., :3] + (1.0 - image[..., 3:4]) * bg
-        elif mode == "depth":
-            out = image[..., 0].copy()
+            out = self.front_image(background)
         else:
-            out = image[..., 3].copy()
+            out = self.front_rgba()[..., 0 if mode == "depth" else 3].copy()
         self.last_timings["readback"] = (time.perf_counter() - t0) * 1e3
         return out
+
+    def front_rgba(self) -> np.ndarray:
+        """The finished image read back: premultiplied RGBA (H, W, 4) float32, rows top to bottom."""
+        front, (w, h) = self._fbo, self.image_size
+        if front is None:
+            raise ValueError("no image is finished yet")
+        return self._read(front, 0, w, h)
+
+    def front_image(self, background=(0.0, 0.0, 0.0)) -> np.ndarray:
+        """The finished image over `background`: (H, W, 3) float32 C + (1 - A) bg, rows top to bottom (what `render`
+        returns, and what the CNN takes)."""
+        image = self.front_rgba()
+        return image[..., :3] + (1.0 - image[..., 3:4]) * np.asarray(background, dtype=np.float32).reshape(3)
 
     def present(self, framebuffer: moderngl.Framebuffer, background=(0.0, 0.0, 0.0), flip_y: bool = True,
                 viewport: tuple[int, int, int, int] | None = None) -> None:
@@ -588,7 +591,7 @@ class SplatRenderer(AuxiliaryPasses):
         scaled = tex.size != (vp[2], vp[3])  # a reduced-resolution image: upscale bilinearly
         tex.filter = (moderngl.LINEAR, moderngl.LINEAR) if scaled else (moderngl.NEAREST, moderngl.NEAREST)
         tex.use(0)
-        self._composite_prog["u_image"].value = 0  # type: ignore[union-attr]
-        self._composite_prog["u_background"].value = tuple(float(v) for v in background)  # type: ignore[union-attr]
-        self._composite_prog["u_flip_y"].value = 1 if flip_y else 0  # type: ignore[union-attr]
+        uniform(self._composite_prog, "u_image").value = 0
+        uniform(self._composite_prog, "u_background").value = tuple(float(v) for v in background)
+        uniform(self._composite_prog, "u_flip_y").value = 1 if flip_y else 0
         self._composite_vao.render(moderngl.TRIANGLES, vertices=3)

@@ -33,8 +33,9 @@ from npga_core.camera.cameras import Camera
 from npga_core.model.gaussians import SH_C0, PosedGaussians, covariances, sh_degree_from_count
 from npga_core.model.sh import SH_C1, SH_C2, SH_C3
 from npga_view.rendering.lines import pack_rgba8
-from npga_view.rendering.renderer import NEAR, SplatRenderer, _mat4_uniform, camera_key, load_shader
+from npga_view.rendering.renderer import NEAR, SplatRenderer, camera_key, load_shader
 from npga_view.rendering.sorting import sort_back_to_front, view_depths
+from npga_view.rendering.uniforms import mat4_bytes, uniform
 
 #: texels per row of the splat and latent textures (the shaders' SPLAT_TEXTURE_WIDTH)
 TEXTURE_WIDTH = 4096
@@ -227,8 +228,8 @@ class LinePass41:
         if self._vao is None:
             self._vao = self.ctx.vertex_array(self._prog, [(self._positions, "3f", "in_position"),
                                                            (self._colours, "4f1", "in_colour")])
-        self._prog["u_view"].write(_mat4_uniform(camera.world_to_camera))  # type: ignore[union-attr]
-        self._prog["u_proj"].write(_mat4_uniform(camera.opengl_projection(near, far, flip_y)))  # type: ignore[union-attr]
+        uniform(self._prog, "u_view").write(mat4_bytes(camera.world_to_camera))
+        uniform(self._prog, "u_proj").write(mat4_bytes(camera.opengl_projection(near, far, flip_y)))
         self._vao.render(moderngl.LINES, vertices=2 * self._count)
 
     def release(self) -> None:
@@ -329,11 +330,11 @@ class SplatRenderer41(SplatRenderer):
 
     def _bind_splats(self, prog: moderngl.Program) -> None:
         self._textures["splats"].use(0)
-        prog["u_splats"].value = 0  # type: ignore[union-attr]
+        uniform(prog, "u_splats").value = 0
 
     def _bind_latent(self, prog: moderngl.Program) -> None:
         self._textures["latent"].use(1)
-        prog["u_latent"].value = 1  # type: ignore[union-attr]
+        uniform(prog, "u_latent").value = 1
 
     @property
     def drawn_count(self) -> int:

@@ -29,7 +29,7 @@ long drag), unless it is a full-resolution refinement that a new interaction mak
 dropped. Which image to start is decided by the pure `draw_plan.plan` (its named states: idle, live,
 refining, waiting for a merge); this class gathers its inputs and carries it out. (The behaviour before
 budgeting, every change drawn at once in full, lives in the benchmark that compares both:
-npga_view/cli/bench_window.py.)
+npga_view/benchmarks/bench_window.py.)
 """
 
 from __future__ import annotations
@@ -62,7 +62,9 @@ def scaled_camera(camera: Camera, scale: float) -> Camera:
 
 
 @dataclass
-class _Image:
+class ImageJob:
+    """One image the scheduler draws (or has on screen): of what, at which scale, from which cloud, by whom."""
+
     target: Target
     scale: float
     exact_content: bool  # the cloud drawn was the exact pose (not a preview)
@@ -97,8 +99,8 @@ class DrawScheduler:
         self.settle_s = settle_s
         self.interactive_scale = FIRST_LIVE_SCALE  # the scale for live images, adapted to the measured cost
         self.lod_scale = FIRST_LIVE_SCALE  # the same for live images of the merged cloud
-        self._shown: _Image | None = None
-        self._job: _Image | None = None
+        self._shown: ImageJob | None = None
+        self._job: ImageJob | None = None
         self._job_t0 = 0.0
         self._target: Target | None = None
         self._view: tuple | None = None  # camera and mode of the last frame
@@ -150,7 +152,7 @@ class DrawScheduler:
         shown = self._shown
         return self._job is None and shown is not None and shown.target == self._target and self._final(shown)
 
-    def _final(self, image: _Image) -> bool:
+    def _final(self, image: ImageJob) -> bool:
         """A full-resolution image of every Gaussian (a merged cloud's image is not, at any scale)."""
         return image.scale >= 1.0 and image.renderer is self.renderer
 
@@ -299,7 +301,7 @@ class DrawScheduler:
         scale = decision.scale
         if first and scale < 1.0:  # (smaller still: drawn in one frame where it can; the next live image is sharper)
             scale = max(self.min_scale, round(scale * FIRST_SCALE, 3))
-        self._start(camera, target.mode, _Image(decision.draw, scale, decision.exact_content,
+        self._start(camera, target.mode, ImageJob(decision.draw, scale, decision.exact_content,
                                                 decision.live, renderer or self.renderer, first), now)
         return True
 
@@ -317,7 +319,7 @@ class DrawScheduler:
         self.live_budget_ms = min(self.budget_ms, max(left, self.budget_ms / 3))
         return self.live_budget_ms
 
-    def _start(self, camera: Camera, mode: str, image: _Image, now: float) -> None:
+    def _start(self, camera: Camera, mode: str, image: ImageJob, now: float) -> None:
         if image.renderer is self.renderer and self.before_full_image is not None:
             self.before_full_image()  # e.g. the newest pose, held back while the last image was drawn
         image.renderer.begin_draw(scaled_camera(camera, image.scale), mode)
@@ -345,7 +347,7 @@ class DrawScheduler:
             self._live_wall_ms[0 if job.renderer is self.renderer else 1] = self.last_image_wall_ms
         return True
 
-    def _adapt(self, job: _Image, image_ms: float) -> None:
+    def _adapt(self, job: ImageJob, image_ms: float) -> None:
         """Choose the live scale (of the renderer that drew `job`) from its cost (damped, within limits)."""
         if image_ms <= 0:
             return

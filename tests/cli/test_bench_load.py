@@ -7,7 +7,7 @@ import subprocess
 import sys
 import time
 
-from npga_view.cli.bench_window import start_load, stop_load
+from npga_view.benchmarks.bench_window import start_load, stop_load
 
 
 def _alive(pid: int) -> bool:
@@ -29,7 +29,7 @@ def test_load_processes_are_busy_and_stopped():
 
 
 def test_load_processes_end_with_their_parent(tmp_path):
-    code = ("import sys; from npga_view.cli.bench_window import start_load; "
+    code = ("import sys; from npga_view.benchmarks.bench_window import start_load; "
             "print(' '.join(str(p.pid) for p in start_load(2)), flush=True)")
     r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=60,
                        env={**os.environ, "PYTHONPATH": os.getcwd()})

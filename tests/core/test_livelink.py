@@ -22,7 +22,7 @@ from npga_core.files.blendshape_names import ARKIT_52, match_names
 from npga_core.files.loading import load_sequence
 from npga_core.model.blendshapes import BlendshapeBasis
 from npga_core.posing.livelink import LiveLinkReceiver, PacketError, decode, encode
-from npga_core.posing.smoothing import one_euro
+from npga_core.posing.smoothing import Smoothing, SmoothingFilter
 
 UUID = "$" + "12345678-9abc-11ee-8000-0242ac120002"
 
@@ -126,12 +126,13 @@ def test_late_packets_neutral_gains_and_dropped():
 
 def test_streamed_smoothing_is_the_one_euro_filter():
     x = np.random.default_rng(1).uniform(0, 1, (30, 61)).astype(np.float32)
-    with LiveLinkReceiver(port=0, smoothing=(1.0, 0.5)) as rx:
+    with LiveLinkReceiver(port=0, smoothing=Smoothing("one_euro", min_cutoff=1.0, beta=0.5)) as rx:
         out = []
         for k in range(30):
             rx.feed(pylivelinkface_packet(x[k], 500 + k))
             out.append(rx.latest()[0])
-    np.testing.assert_allclose(np.stack(out), one_euro(x[:, :52], 60.0), atol=1e-5)
+    euro = SmoothingFilter(Smoothing("one_euro", min_cutoff=1.0, beta=0.5))
+    np.testing.assert_allclose(np.stack(out), euro.run(x[:, :52], 60.0), atol=1e-5)
 
 
 def test_recording_reopens_as_a_sequence(tmp_path):
@@ -168,7 +169,7 @@ def test_a_clock_jump_re_anchors_the_stream():
     """#36: one packet stamped 11 hours ahead (60 fps) made every later valid packet "late" until the clock caught
     up: the stream froze. A jump (ahead by more than JUMP_S, or back by more than REORDER_S) re-anchors the clock
     on the packet and restarts the smoothing; a packet slightly behind is still late."""
-    with LiveLinkReceiver(port=0, smoothing=(1.0, 0.5)) as rx:
+    with LiveLinkReceiver(port=0, smoothing=Smoothing("one_euro", min_cutoff=1.0, beta=0.5)) as rx:
         assert rx.feed(pylivelinkface_packet(values(jawOpen=0.1), 1000))
         assert rx.feed(pylivelinkface_packet(values(jawOpen=0.2), 1000 + 11 * 3600 * 60))  # 11 hours ahead
         for k in range(1, 6):

@@ -144,7 +144,7 @@ def test_cli_precision_flag(tmp_path, capsys, small_npga):
 
 
 def test_peer_bench_skips_without_a_checkout(tmp_path, capsys):
-    from npga_view.cli.bench_peer import run
+    from npga_view.benchmarks.bench_peer import run
 
     assert run(tmp_path / "nothing", 64, 48, 2, 1, None) is None
     assert "skipped: no GaussianSplattingViewer checkout" in capsys.readouterr().out

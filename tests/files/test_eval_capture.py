@@ -13,8 +13,8 @@ import pytest
 from npga_core.camera.cameras import Camera
 from npga_core.errors import AvatarFileError
 from npga_core.evaluation.capture import GHA, code_index, load_capture
+from npga_core.evaluation.views import protocol_view
 from npga_core.files.sequences import ExpressionSequence
-from npga_view.cli.evaluate import protocol_view
 
 
 def _gha(root, frames=(0, 1), cams=("00", "01")):

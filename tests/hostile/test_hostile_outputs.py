@@ -124,7 +124,7 @@ def test_protocol_crop_of_an_extreme_image_is_refused():
     million (or 1.1 million x 802) pixels, 10-60 GB; refused before OpenCV is asked, naming the image."""
     from npga_core.camera.cameras import Camera
     from npga_core.errors import AvatarFileError
-    from npga_view.cli.evaluate import protocol_view
+    from npga_core.evaluation.views import protocol_view
 
     for w, h in ((1, 16384), (16384, 12)):
         cam = Camera(np.eye(4), 10.0, 10.0, w / 2, h / 2, w, h)

@@ -131,7 +131,7 @@ def _cpu_seconds(pid: int) -> float:
 def test_sigterm_ends_a_render_inside_a_cnn_of_minutes(tmp_path):
     """A valid avatar whose CNN's costs are within the header bounds but take minutes on a CPU (a 15x15
     convolution of 192 -> 192 channels at 800x600, one call into C of ~3 CPU-minutes): SIGTERM while the render
-    is inside it ends the render at once (the CNN runs on a helper thread, `interruptible` in npga_view/cli/signals.py)
+    is inside it ends the render at once (the CNN runs on a helper thread, `interruptible` in npga_view/signals.py)
     with one line, exit 128 + 15 and nothing written. Before, the signal waited for the convolution to end.
     The avatar has 13 latent channels (a cheap latent pass): the same render with a CNN of two 3x3 layers of 8
     channels takes ~3.1 CPU-s in all (imports, pose, splats, latent, CNN, PNG; measured 25 Nov 2026), so at

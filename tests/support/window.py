@@ -78,7 +78,7 @@ def until_changed(app, before: np.ndarray, timeout: float = 180.0, min_fraction:
     return now
 def settled(app, timeout: float = 180.0) -> np.ndarray:
     """Step until the exact pose's full-resolution image is on screen (a generous bound), then read the view."""
-    from npga_view.cli.bench_window import _exact
+    from npga_view.benchmarks.bench_window import _exact
 
     end = time.monotonic() + timeout
     while time.monotonic() < end:

@@ -170,8 +170,8 @@ def test_scheduler_labels_a_preview_pose_until_the_exact_one(renderer, posed):
 
 
 def test_unbudgeted_scheduler_draws_each_change_at_once(renderer, posed):
-    """The window benchmark's comparison (npga_view/cli/bench_window.py): drawing as before frame budgets."""
-    from npga_view.cli.bench_window import UnbudgetedScheduler
+    """The window benchmark's comparison (npga_view/benchmarks/bench_window.py): drawing as before frame budgets."""
+    from npga_view.benchmarks.bench_window import UnbudgetedScheduler
 
     sched = UnbudgetedScheduler(renderer)
     cam = frame_points(posed.means, 130, 110)

@@ -169,8 +169,8 @@ MODES = ["features", "feature:2", "latent", "latent:1", "offset", "laplacian", "
 @pytest.mark.slow
 def test_render_modes_write_pictures_with_a_legend(small_npga, tmp_path, capsys) -> None:
     cv2 = pytest.importorskip("cv2")
+    from npga_core.inspection.legend import LEGEND_HEIGHT
     from npga_view.cli.main import main
-    from npga_view.cli.render import LEGEND_HEIGHT
 
     size = ["--width", "48", "--height", "64"]
     pictures = {}

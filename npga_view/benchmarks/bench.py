@@ -33,7 +33,7 @@ from typing import TYPE_CHECKING, cast
 import numpy as np
 
 from npga_core.posing.precision import PRECISION_HELP
-from npga_view.cli.bench_precision import gemm_gflops
+from npga_view.benchmarks.bench_precision import gemm_gflops
 
 if TYPE_CHECKING:
     from npga_core.posing.fastpose import FastPoser
@@ -61,7 +61,7 @@ def add_arguments(p: argparse.ArgumentParser) -> None:
     p.add_argument("--precision", default="auto", metavar="fp32|bf16|auto", help=PRECISION_HELP)
     p.add_argument("--peer", type=Path, metavar="PATH",
                    help="also draw the demo against GaussianSplattingViewer's OpenGL renderer from this checkout "
-                   "(1360x900 window, 15-frame yaw orbit, alternating; npga_view/cli/bench_peer.py)")
+                   "(1360x900 window, 15-frame yaw orbit, alternating; npga_view/benchmarks/bench_peer.py)")
     p.add_argument("--no-render", action="store_true", help="skip OpenGL (no draw timings, no PSNR)")
     p.add_argument("--window", action="store_true",
                    help="measure the real window on its pixels instead (first pixels, slider, orbit, playback; "
@@ -127,7 +127,7 @@ class _Renderer:
                          ("preprocess_ms", t.get("preprocess", 0.0)), ("draw_ms", t.get("draw", 0.0))):
                 rows.setdefault(k, []).append(v)
             if avatar.cnn is not None and self.r.latent_dim:
-                from npga_view.rendering.refinement import cnn_input
+                from npga_view.rendering.pipeline import cnn_input
 
                 t0 = time.perf_counter()
                 image = cnn_input(self.r, avatar.cnn, c)  # the image the window's CNN takes (its input size)
@@ -412,7 +412,7 @@ def viewer_side(path: str, args) -> dict:
 def _helper_init(parent_pid: int) -> None:
     """Start of bench's helper process: exit when bench is gone; SIGTERM unwinds like in the CLI."""
     from npga_core.posing.lifetime import start_parent_watch
-    from npga_view.cli import signals
+    from npga_view import signals
 
     start_parent_watch(parent_pid, [])
     signals.install()
@@ -445,7 +445,7 @@ def bench_avatar(name: str, path: str, args) -> dict:
     codes, _ = _sequence(avatar, args.bake_frames)
     renderer = None if args.no_render else _Renderer(avatar.cloud.means)
     poser = _exact_in_process(avatar, args, out)
-    from npga_view.cli.bench_precision import precision_ratio
+    from npga_view.benchmarks.bench_precision import precision_ratio
 
     out.update(precision_ratio(avatar, args, renderer, codes))
     if renderer is not None:
@@ -455,7 +455,7 @@ def bench_avatar(name: str, path: str, args) -> dict:
         dest = posed_buffers(len(avatar), avatar.cloud.sh.shape[1], avatar.cloud.latent_dim)
         poser.pose_into(avatar.neutral_code(), dest)
         out.update(renderer.stages(PosedGaussians(**dest), avatar, args.repeat))
-        from npga_view.cli.bench_precision import path_ratio
+        from npga_view.benchmarks.bench_precision import path_ratio
 
         out["draw_paths"] = path_ratio(renderer, PosedGaussians(**dest), repeat=args.repeat)
     from npga_core.posing.engine import EngineOptions
@@ -488,7 +488,7 @@ def _print(res: dict) -> None:
           f"{f('roofline_ratio', '', '{:.2f}')} "
           f"of gemm (median round {f('roofline_ratio_median', '', '{:.2f}')})  "
           f"(Avatar.pose {f('avatar_pose_ms', ' ms')})")
-    from npga_view.cli.bench_precision import print_precision
+    from npga_view.benchmarks.bench_precision import print_precision
 
     print_precision(res)
     for size, d in (res.get("draw_paths") or {}).items():
@@ -513,7 +513,7 @@ def _print(res: dict) -> None:
 
 def run(args: argparse.Namespace) -> int:
     if args.window:
-        from npga_view.cli.bench_window import run as run_window
+        from npga_view.benchmarks.bench_window import run as run_window
 
         sizes = [n for n in args.gaussians if n != 20000] if args.gaussians == list(DEFAULT_SIZES) else args.gaussians
         run_window(sizes, demo=not args.avatars, json_path=args.json, moves=min(args.moves, 6),
@@ -535,7 +535,7 @@ def run(args: argparse.Namespace) -> int:
     if not targets and DEMO_AVATAR.is_file():
         targets.append(("demo", str(DEMO_AVATAR)))
     from npga_core.posing.precision import check_precision, cpu_flags
-    from npga_view.cli.bench_precision import cpu_name, mm_ratio
+    from npga_view.benchmarks.bench_precision import cpu_name, mm_ratio
 
     try:
         args.precision = check_precision(args.precision)
@@ -579,7 +579,7 @@ def run(args: argparse.Namespace) -> int:
             sys.stdout.flush()
     peer = None
     if args.peer is not None and not args.no_render:
-        from npga_view.cli.bench_peer import run as run_peer
+        from npga_view.benchmarks.bench_peer import run as run_peer
 
         peer = run_peer(args.peer, 1360, 900, 15, 2, None)
     if args.json:

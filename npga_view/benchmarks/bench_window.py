@@ -36,7 +36,7 @@ from npga_view.actions import Bake
 from npga_view.frame_profile import SECTIONS
 from npga_view.rendering.draw_plan import Target
 from npga_view.rendering.renderer import camera_key
-from npga_view.rendering.scheduler import DrawScheduler, _Image
+from npga_view.rendering.scheduler import DrawScheduler, ImageJob
 
 if TYPE_CHECKING:
     from npga_core.model.avatar import Avatar
@@ -174,7 +174,7 @@ class UnbudgetedScheduler(DrawScheduler):
         shown = self._shown
         if shown is not None and shown.target == target and shown.scale >= 1.0:
             return False
-        image = _Image(target, 1.0, exact_content, False, self.renderer)
+        image = ImageJob(target, 1.0, exact_content, False, self.renderer)
         self._start(camera, mode, image, frame_start if now is None else now)
         return self._continue(math.inf, frame_start)
 

@@ -154,8 +154,8 @@ def run(peer: Path | None, width: int, height: int, frames: int, rounds: int, sc
         print(f"bench_peer: skipped: no GaussianSplattingViewer checkout at {peer} (give --peer PATH or set "
               "NPGA_PEER_GSV)")
         return None
-    from npga_view.cli.bench_precision import cpu_name
-    from npga_view.cli.bench_window import start_xvfb
+    from npga_view.benchmarks.bench_precision import cpu_name
+    from npga_view.benchmarks.bench_window import start_xvfb
     from npga_view.imgui_glfw import glfw
     from npga_view.rendering.gl import release_current_egl
 

@@ -1,16 +1,34 @@
-"""The files of an `evaluate` report: metrics.csv, summary.md, metrics.png, worst views, problems.txt."""
+"""The files of an `evaluate` report: metrics.csv, summary.md, metrics.png, worst views, problems.txt.
+
+The worst views' difference images are the error heatmap of `compare.py` (the Compare panel's), with its colour
+bar. An image that cannot be written is an `ImageWriteError` (one line naming the file)."""
 
 from __future__ import annotations
 
 import csv
 import io
+from dataclasses import dataclass
 from pathlib import Path
 
 import numpy as np
 
 from npga_core.errors import shown
+from npga_core.evaluation.compare import DEFAULT_VMAX, error_map, heatmap
 from npga_core.files.atomic import atomic_write
-from npga_view.cli.render import write_image
+from npga_core.files.image_file import write_image
+
+
+@dataclass
+class Row:
+    """One scored view of the report."""
+
+    frame: int
+    camera: str
+    psnr: float
+    ssim: float
+    lpips: float | None
+    masked: str
+
 
 COLOURS = [(66, 135, 245), (245, 105, 66), (60, 180, 75), (200, 60, 200), (240, 200, 40), (40, 200, 200)]
 
@@ -70,13 +88,11 @@ def _png(path: Path, rgb: np.ndarray) -> None:
 
 
 def write_triplet(out: Path, stem: str, image: np.ndarray, render: np.ndarray) -> None:
-    """capture, render and |difference| (mean over channels, turbo colours, 0..0.25 full scale) as PNGs."""
-    import cv2
+    """capture, render and their difference as PNGs: the error heatmap (mean absolute error over the channels,
+    0..`DEFAULT_VMAX` on inferno, with its colour bar) that the Compare panel shows."""
     _png(out / f"{stem}_image.png", image)
     _png(out / f"{stem}_render.png", render)
-    diff = np.abs(np.asarray(render, np.float64) - image).mean(axis=2)
-    heat = cv2.applyColorMap(np.clip(diff / 0.25 * 255, 0, 255).astype(np.uint8), cv2.COLORMAP_TURBO)
-    write_image(out / f"{stem}_diff.png", heat)
+    _png(out / f"{stem}_diff.png", heatmap(error_map(render, image), DEFAULT_VMAX))
 
 
 def write_plot(path: Path, rows: list, width: int = 900, panel: int = 240) -> None:
