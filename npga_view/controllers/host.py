@@ -36,7 +36,10 @@ class ViewerHost(Protocol):
     state: ViewerState
     doc: Document  # the open avatar, worker, sequence and posed cloud, and their events
     opener: Opener  # opening avatars and sequences (errors go to the UI)
-    screen: Screen  # the cloud on screen: `show` a pose, `reupload` after a selection change
+
+    @property
+    def screen(self) -> Screen:
+        """The cloud on screen: `show` a pose, `reupload` after a selection change."""
 
     def current_camera(self, ignore_keyframes: bool = False) -> Camera:
         """The camera of the splat view."""

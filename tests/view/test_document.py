@@ -19,6 +19,7 @@ from npga_view.document import AvatarOpened, CloudChanged, Document, SequenceCha
 from npga_view.state import ViewerState
 
 ROOT = Path(__file__).resolve().parents[2]
+SMALL = {"hidden": 64, "depth": 3}  # networks small enough to pose in-process at once
 
 
 def test_handlers_run_by_event_type_in_the_order_included():
@@ -30,7 +31,7 @@ def test_handlers_run_by_event_type_in_the_order_included():
     second.subscribe(SequenceChanged, lambda e: seen.append(("second", e.sequence and e.sequence.name)))
     doc.include(first)
     doc.include(second)
-    avatar = make_synthetic_avatar(50, seed=1)  # (in memory: no file, so no worker)
+    avatar = make_synthetic_avatar(50, seed=1, **SMALL)  # (in memory: no file, so no worker)
     doc.posed, doc.code = avatar.pose(), np.zeros(3, np.float32)
     doc.open(avatar)
     assert seen == [("first", "AvatarOpened"), ("second", "AvatarOpened")]
@@ -41,12 +42,13 @@ def test_handlers_run_by_event_type_in_the_order_included():
     doc.set_sequence(seq)
     doc.set_sequence(None)
     assert seen[-2:] == [("second", "still"), ("second", None)] and doc.sequence is None
-    assert len(doc.handlers(AvatarOpened)) == 2 and doc.handlers(SequenceChanged) == second.table[SequenceChanged]
+    assert len(doc.handlers(AvatarOpened)) == 2
+    assert doc.handlers(SequenceChanged) == tuple(second.table[SequenceChanged])
 
 
 def test_shown_clouds_count_versions_and_give_their_means():
     doc = Document()
-    avatar = make_synthetic_avatar(40, seed=2)
+    avatar = make_synthetic_avatar(40, seed=2, **SMALL)
     doc.open(avatar)
     np.testing.assert_array_equal(doc.shown_means(), avatar.cloud.means)  # the canonical cloud until a pose
     posed = avatar.pose()
@@ -123,6 +125,7 @@ def parts(ctx, tmp_path):
     for part in (p.edits, p.screen, p.refining, p.compare, p.bakes, p.poses, p.camera):  # (the app's order)
         doc.include(part.subscriptions())
     yield p
+    doc.close_engine()
     p.compare.release()
     p.refining.release()
     lod.close()
@@ -151,8 +154,8 @@ def _dirty(p, tmp_path, old) -> None:
 
 def test_every_subscriber_resets_when_another_avatar_opens(parts, tmp_path):
     p = parts
-    old = make_synthetic_avatar(300, latent_dim=4, with_cnn=True, code_dim=20, seed=3)
-    new = make_synthetic_avatar(200, code_dim=12, seed=4)
+    old = make_synthetic_avatar(300, latent_dim=4, with_cnn=True, code_dim=20, n_components=8, seed=3, **SMALL)
+    new = make_synthetic_avatar(200, code_dim=12, n_components=8, seed=4, **SMALL)
     _dirty(p, tmp_path, old)
     assert p.refining.refiner.has_cnn and p.compare.sources.capture is not None
     lod_resets = []
@@ -183,13 +186,13 @@ def test_every_subscriber_resets_when_another_avatar_opens(parts, tmp_path):
 
 def test_an_edited_cloud_reaches_every_part_that_holds_the_cloud(parts, tmp_path):
     p = parts
-    avatar = make_synthetic_avatar(200, code_dim=12, seed=5)
+    avatar = make_synthetic_avatar(200, with_f=False, with_g=False, seed=5)  # static: re-posed here, no worker
     p.doc.open(avatar)
     p.bakes.key, p.poses.requested, p.state.inspect.picked = ("k",), np.ones(3), 150
     version = p.doc.version
     p.edits.session.selection[100:] = True
     p.edits.session.run(DeleteSelected())
-    p.edits.after_actions()  # the edited cloud: the document's change_cloud, a static re-pose here (no worker)
+    p.edits.after_actions()  # the edited cloud: the document's change_cloud
     n = len(p.edits.session.avatar)
     assert n == 100 and p.doc.version > version and len(p.doc.posed) == n
     assert p.bakes.key is None and p.poses.requested is None and p.state.inspect.picked is None
