@@ -19,6 +19,7 @@ from npga_core.files.sequences import ExpressionSequence
 from npga_core.model.avatar import Avatar
 from npga_core.posing.headpose import has_head_pose, head_transform, posed_camera
 from npga_view.controllers.editing import EditController
+from npga_view.document import AvatarOpened, Subscriptions
 from npga_view.state import ViewerState
 
 ORBIT_DEG_PER_PX = 0.3  # mouse drags: degrees of orbit or roll per logical pixel
@@ -58,6 +59,15 @@ class ViewCamera:
         elif (head := self._live_head()) is not None:  # the Live Link stream's head angles
             cam = posed_camera(cam, head)
         return cam
+
+    def subscriptions(self) -> Subscriptions:
+        """A new avatar is framed by a fresh orbit camera."""
+        s = Subscriptions()
+        s.subscribe(AvatarOpened, self._opened)
+        return s
+
+    def _opened(self, e: AvatarOpened) -> None:
+        self.frame_avatar(e.avatar, reset=True)
 
     def frame_avatar(self, avatar: Avatar | None, reset: bool = False) -> None:
         """Point the orbit camera at the avatar (from a fresh orbit camera with `reset`)."""

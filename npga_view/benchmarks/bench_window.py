@@ -185,9 +185,11 @@ def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, sec
     from npga_view.app import ViewerApp
 
     t_open = time.perf_counter()
-    app = ViewerApp(*SIZE, vsync=False, threads=2, remember_recent=False,
-                    frame_budget_ms=25.0 if budget else None, level_of_detail=lod, unbudgeted=UnbudgetedScheduler,
-                    precision=precision)
+    app = ViewerApp(*SIZE, vsync=False, threads=2, remember_recent=False, level_of_detail=lod and budget,
+                    scheduler=DrawScheduler if budget else UnbudgetedScheduler, precision=precision)
+    if not budget:  # the window before budgeting: a blank view until the first pose, exact poses only in
+        app.view.pacing.idle_wait_s = 0.0  # playback, and a loop that spins instead of waiting for input
+        app.poses.canonical_first = app.poses.playback_previews = False
     w = _Watcher(app)
     out: dict = {"avatar": Path(avatar).name if avatar != "demo" else "demo", "budget": budget, "lod": budget and lod,
                  "precision": precision}

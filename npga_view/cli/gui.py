@@ -118,7 +118,7 @@ def _open_and_run(args: argparse.Namespace, w: int, h: int, holder: dict) -> int
             from pathlib import Path
 
             app.state.flame_model = str(Path(args.flame_model).resolve())
-            if app.remember_recent:
+            if app.opener.remember_recent:
                 app.state.save_flame_model()
         opened = app.open_avatar(args.avatar)
         if args.basis and opened and app.avatar is not None:

@@ -18,14 +18,10 @@ from npga_core.errors import AvatarFileError, shown
 from npga_core.evaluation.compare import MODES
 from npga_core.model.avatar import Avatar
 from npga_view import actions as C
-from npga_view.comparison.snapshot import CompareInfo
+from npga_view.comparison.snapshot import PAIRS, CompareInfo, score_label
 from npga_view.comparison.sources import CompareSources
-from npga_view.comparison.view import PAIRS, CompareView
-
-
-def score_label(key: str) -> str:
-    """"a" -> "A vs capture", "a-b" -> "A vs B"."""
-    return "A vs B" if key == "a-b" else f"{key.upper()} vs capture"
+from npga_view.comparison.view import CompareView
+from npga_view.document import AvatarOpened, Subscriptions
 
 
 class CompareController:
@@ -57,6 +53,19 @@ class CompareController:
         h.register(C.SetCompareBackground, self._background)
         h.register(C.StepCapture, self._step)
         return h
+
+    def subscriptions(self) -> Subscriptions:
+        """A new avatar: the capture's codes must fit it (as a sequence must)."""
+        s = Subscriptions()
+        s.subscribe(AvatarOpened, self._avatar_opened)
+        return s
+
+    def _avatar_opened(self, e: AvatarOpened) -> None:
+        try:
+            self.sources.check_sequence(e.avatar.code_dim)
+        except AvatarFileError as err:
+            self.sources.close_capture()
+            self.messages.append(f"capture: {err}; capture closed")
 
     # --- actions --------------------------------------------------------------------------------------
     def _open_capture(self, a: C.OpenCapture) -> None:
@@ -192,4 +201,4 @@ class CompareController:
         self.view.release()
 
 
-__all__ = ["PAIRS", "CompareController", "CompareInfo"]
+__all__ = ["PAIRS", "CompareController", "CompareInfo", "score_label"]

@@ -1,10 +1,18 @@
-"""`CompareInfo`: what the Compare panel and the overlay show of the comparison (a snapshot)."""
+"""`CompareInfo`: what the Compare panel and the overlay show of the comparison (a snapshot), with the names of the
+pairs compared and their scores' labels (no GL here: the panel imports this, not the views)."""
 
 from __future__ import annotations
 
 from dataclasses import dataclass, field
 
 from npga_core.evaluation.compare import DEFAULT_VMAX
+
+PAIRS = ("a-capture", "b-capture", "a-b")  # what is compared: the avatar (A) or B against the capture, or A against B
+
+
+def score_label(key: str) -> str:
+    """"a" -> "A vs capture", "a-b" -> "A vs B"."""
+    return "A vs B" if key == "a-b" else f"{key.upper()} vs capture"
 
 
 @dataclass(frozen=True)

@@ -32,13 +32,12 @@ from npga_core.evaluation.compare import CompareSettings, Mode, compose
 from npga_core.evaluation.metrics import Scores, composite_background, score
 from npga_core.model.avatar import Avatar
 from npga_core.model.gaussians import PosedGaussians
+from npga_view.comparison.snapshot import PAIRS
 from npga_view.comparison.sources import CompareSources, Job, Prepared
 from npga_view.rendering.factory import create_renderer
 from npga_view.rendering.pipeline import ViewImage
 from npga_view.rendering.refinement import Refiner
 from npga_view.rendering.renderer import SplatRenderer
-
-PAIRS = ("a-capture", "b-capture", "a-b")
 
 
 @dataclass

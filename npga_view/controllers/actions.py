@@ -73,16 +73,16 @@ class ActionController:
         return h
 
     def _expression(self) -> ExpressionSpace | None:
-        return self.host.avatar.expression if self.host.avatar is not None else None
+        return self.host.doc.avatar.expression if self.host.doc.avatar is not None else None
 
     # -- files, camera (the camera object is read each time: Reset and sessions replace it) ----------------
     def _open_avatar(self, a: A.OpenAvatar) -> None:
         if a.path:
-            self.host.open_avatar(a.path)
+            self.host.opener.open_avatar(a.path)
 
     def _open_sequence(self, a: A.OpenSequence) -> None:
         if a.path:
-            self.host.open_sequence(a.path)
+            self.host.opener.open_sequence(a.path)
 
     def _frame_avatar(self, a: A.FrameAvatar) -> None:
         self.host.frame_avatar()
@@ -108,7 +108,7 @@ class ActionController:
             self.host.state.rig_index = (self.host.state.rig_index + a.step) % len(self.rig)
 
     def _focus(self, a: A.FocusGaussian) -> None:
-        posed, st = self.host.shown_posed(), self.host.state
+        posed, st = self.host.doc.posed, self.host.state
         if posed is not None and 0 <= a.index < len(posed):
             st.camera.target = [float(v) for v in posed.means[a.index]]
             st.rig_index = -1
@@ -125,7 +125,7 @@ class ActionController:
         st.sliders[:] = 0
         k = min(st.n_sliders, st.sliders.size)
         rng = np.random.default_rng()
-        avatar = self.host.avatar
+        avatar = self.host.doc.avatar
         if avatar is not None and avatar.slider_channels is not None:  # weights: a quarter of the channels on, 0..1
             st.sliders[:k] = rng.uniform(0.0, 1.0, k) * (rng.random(k) < 0.25)
         else:
@@ -157,17 +157,17 @@ class ActionController:
 
     def _toggle_play(self, a: A.TogglePlay) -> None:
         st = self.host.state
-        if self.host.sequence is not None:
+        if self.host.doc.sequence is not None:
             st.timeline.playing = not st.timeline.playing
             st.follow_sequence = True
 
     def _step(self, a: A.StepFrames) -> None:
         host, st = self.host, self.host.state
-        if host.sequence is None:
+        if host.doc.sequence is None:
             return
         st.timeline.playing = False
-        f = (self.poses.frame + a.delta) % len(host.sequence)
-        st.timeline.time_s = (f + 0.5) / host.sequence.fps
+        f = (self.poses.frame + a.delta) % len(host.doc.sequence)
+        st.timeline.time_s = (f + 0.5) / host.doc.sequence.fps
         st.follow_sequence = True
 
     def _bake(self, a: A.Bake) -> None:
@@ -193,7 +193,7 @@ class ActionController:
         """Give the open avatar the basis at `a.path` (takes opened after it and the Live Link stream use it)."""
         from npga_core.files.basis_file import attach_basis
 
-        avatar = self.host.avatar
+        avatar = self.host.doc.avatar
         if avatar is None or avatar.code_dim == 0:
             self.host.state.report(f"{a.path}: open an animatable avatar before its blendshape basis")
             return
@@ -207,7 +207,7 @@ class ActionController:
             st.report(f"{a.path}: not a file (give your FLAME model, e.g. flame2023.pkl)")
             return
         st.flame_model = str(Path(a.path).resolve())
-        if self.host.remember_recent:
+        if self.host.opener.remember_recent:
             st.save_flame_model()
         st.tell(f"FLAME model {st.flame_model}: GaussianAvatars folders now open with it")
 
@@ -228,11 +228,11 @@ class ActionController:
         cam, sliders = st.camera, st.sliders.copy()
         seq_path, time_s, follow = st.sequence_path, st.timeline.time_s, st.follow_sequence
         if st.avatar_path and st.avatar_path != old_avatar:
-            host.open_avatar(st.avatar_path)
-        if seq_path and seq_path != old_seq and host.open_sequence(seq_path):
+            host.opener.open_avatar(st.avatar_path)
+        if seq_path and seq_path != old_seq and host.opener.open_sequence(seq_path):
             st.timeline.time_s, st.follow_sequence = time_s, follow  # the session's place, not the start
         st.camera = cam
-        if host.avatar is not None and sliders.size == st.sliders.size:
+        if host.doc.avatar is not None and sliders.size == st.sliders.size:
             st.sliders = sliders
         if st.rig_path:
             try:

@@ -12,6 +12,7 @@ from collections.abc import Callable
 
 from npga_core.posing.engine import BakeStatus, PoseEngine
 from npga_view.controllers.sequence_codes import SequenceCodes
+from npga_view.document import AvatarOpened, CloudChanged, Subscriptions
 from npga_view.state import ViewerState
 
 
@@ -45,8 +46,14 @@ class BakeController:
         self.key = None
         self._state.timeline.baked = False
 
-    def forget(self) -> None:
-        """The worker was restarted (an edit, another avatar): its bake is gone."""
+    def subscriptions(self) -> Subscriptions:
+        """A new worker (another avatar, an edit) has no bake: forget it."""
+        s = Subscriptions()
+        s.subscribe(AvatarOpened, self._forget)
+        s.subscribe(CloudChanged, self._forget)
+        return s
+
+    def _forget(self, e: AvatarOpened | CloudChanged) -> None:
         self.key = None
 
     @property

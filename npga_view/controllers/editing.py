@@ -1,6 +1,7 @@
 """The window's side of editing and keyframes: runs the edit/keyframe actions, turns Ctrl-drags in the
 splat view into screen-space selections, highlights selected/hidden/preview Gaussians in what is uploaded, and
-keeps the pose worker in step with the edited cloud.
+keeps the pose worker in step with the edited cloud (the document's `change_cloud`). Each avatar opened gets a new
+edit session (it subscribes to `AvatarOpened`).
 
 The pose worker opens the avatar from a file, so after an edit that changes the cloud the controller writes
 the edited avatar to a private temp file and restarts the worker on it (about a second for the demo).
@@ -9,6 +10,7 @@ the edited avatar to a private temp file and restarts the worker on it (about a 
 from __future__ import annotations
 
 import shutil
+import sys
 import tempfile
 import time
 from pathlib import Path
@@ -22,8 +24,9 @@ from npga_core.model.gaussians import PosedGaussians, rgb_to_sh0
 from npga_view import actions as A
 from npga_view.controllers.edit_actions import EDIT_TABLE, KEYFRAME_TABLE, EditView, apply_edit, apply_keyframe
 from npga_view.controllers.host import ViewerHost
+from npga_view.display import AppInfo
+from npga_view.document import AvatarOpened, Subscriptions
 from npga_view.imgui_glfw import imgui
-from npga_view.panels.info import AppInfo
 
 SELECT_RGB = (1.0, 0.55, 0.1)  # orange: selected
 PREVIEW_RGB = (1.0, 0.1, 0.1)  # red: would be removed
@@ -68,6 +71,14 @@ class EditController:
         self._serial = 0
 
     # -- sessions -----------------------------------------------------------------------------------
+    def subscriptions(self) -> Subscriptions:
+        s = Subscriptions()
+        s.subscribe(AvatarOpened, self._opened)
+        return s
+
+    def _opened(self, e: AvatarOpened) -> None:
+        self.start(e.avatar, e.avatar.source)
+
     def start(self, avatar, source: str | None) -> None:
         self.session = EditSession(avatar, source=source)
         self._seen = (self.session.version, self.session.mask_version)
@@ -95,7 +106,7 @@ class EditController:
         if self.session is None:
             raise ValueError("open an avatar first")
         app = self.app
-        apply_edit(self.session, a, EditView(app.current_camera(), app.shown_means(), app.shown_code()))
+        apply_edit(self.session, a, EditView(app.current_camera(), app.doc.shown_means(), app.doc.code))
 
     def _timeline(self, a: A.Action) -> None:
         apply_keyframe(self.keyframes, a)
@@ -105,7 +116,7 @@ class EditController:
 
     def _recover(self, a: A.RecoverEdits) -> None:
         session = EditSession.recover(a.source)
-        self.app.adopt_avatar(session.avatar, a.source)
+        self.app.opener.adopt(session.avatar, a.source)
         self.session = session
         self._seen = (-1, -1)  # force a re-sync with the worker
 
@@ -128,8 +139,9 @@ class EditController:
 
     def _load_keyframes(self, a: A.LoadKeyframes) -> None:
         loaded = KeyframeTimeline.load(a.path)
-        if self.app.avatar is not None:
-            loaded.check_code_dim(self.app.avatar.code_dim, a.path)
+        avatar = self.app.doc.avatar
+        if avatar is not None:
+            loaded.check_code_dim(avatar.code_dim, a.path)
         self.keyframes = loaded
         self.kf_time, self.kf_playing = 0.0, False
 
@@ -208,10 +220,10 @@ class EditController:
         version, masks = s.version, s.mask_version
         if version != self._seen[0]:
             self._seen = (version, masks)
-            self.app.cloud_changed(self._write_for_worker())
+            self.app.doc.change_cloud(self._write_for_worker())
         elif masks != self._seen[1]:
             self._seen = (version, masks)
-            self.app.reupload()
+            self.app.screen.reupload()
 
     def _write_for_worker(self) -> str | None:
         """The edited avatar in a private file for the pose worker (None for static avatars)."""
@@ -240,4 +252,11 @@ class EditController:
                 self.app.state.report(f"autosave failed: {e}")
 
     def close(self) -> None:
+        """The window closes: unsaved edits autosaved (a failure said on stderr), the worker's copies removed."""
+        s = self.session
+        if s is not None and s.dirty:
+            try:
+                s.autosave()
+            except (OSError, ValueError) as e:
+                print(f"npga-view: autosave failed: {' '.join(str(e).split())}", file=sys.stderr)
         shutil.rmtree(self._tmp, ignore_errors=True)

@@ -28,7 +28,7 @@ if TYPE_CHECKING:
     from npga_core.model.avatar import Avatar
 from npga_view import actions as A
 from npga_view.controllers.host import ViewerHost
-from npga_view.panels.info import AppInfo
+from npga_view.display import AppInfo
 
 #: How long after the last packet the window keeps drawing at full rate (no idle wait between frames).
 BUSY_S = 0.5
@@ -110,7 +110,7 @@ class LiveLinkController:
 
     # ------------------------------------------------------------------------------------ per frame
     def _basis(self):
-        a = self.host.avatar
+        a = self.host.doc.avatar
         if a is None or a.code_dim == 0:
             raise ValueError("open an animatable avatar first")
         if a.blendshapes is None:
@@ -126,7 +126,7 @@ class LiveLinkController:
         if got is None or got[1] == self.last_packet_t:
             return
         weights, t = got
-        a = self.host.avatar
+        a = self.host.doc.avatar
         basis = a.blendshapes if a is not None else None
         av = cast("Avatar", a)  # there is a basis only with an avatar
         if basis is None or basis.code_dim not in (av.code_dim, av.code_dim - av.condition_dim):
@@ -159,7 +159,7 @@ class LiveLinkController:
     def code_or(self, fallback: Callable[[], np.ndarray | None]) -> Callable[[], np.ndarray | None]:
         """A code source for the pose controller: the live code while listening, else `fallback`'s."""
         def source() -> np.ndarray | None:
-            a, z = self.host.avatar, self.code
+            a, z = self.host.doc.avatar, self.code
             if self.receiver is not None and z is not None and a is not None \
                     and len(z) in (a.code_dim, a.code_dim - a.condition_dim):
                 return z

@@ -3,7 +3,9 @@
 Every frame the controller picks the target code (the sequence frame on the clock, a keyframe, or the
 sliders), asks the worker for it when it changed (a preview first and then the exact pose for slider moves,
 exact poses or baked frames for playback), and takes what the worker answered: the posed cloud goes to the
-host's `show`, and the frame bookkeeping tells playback which frame is on screen.
+host's screen (`show`), and the frame bookkeeping tells playback which frame is on screen. It subscribes to the
+document (npga_view/document.py): a new avatar resets it and shows its first pixels, an edit or a new worker asks
+again, a sequence opened or closed sets up playback.
 """
 
 from __future__ import annotations
@@ -18,7 +20,8 @@ from npga_view.controllers.bake import BakeController
 from npga_view.controllers.host import ViewerHost
 from npga_view.controllers.playback import Playback
 from npga_view.controllers.sequence_codes import SequenceCodes
-from npga_view.panels.info import AppInfo
+from npga_view.display import AppInfo
+from npga_view.document import AvatarOpened, CloudChanged, SequenceChanged, Subscriptions
 
 
 class PoseController:
@@ -28,6 +31,7 @@ class PoseController:
                  keyframe_code: Callable[[], np.ndarray | None], playback_previews: bool = True):
         self.host = host
         self.playback_previews = playback_previews  # real-time playback may show previews to keep the clock
+        self.canonical_first = True  # show the canonical cloud at once when an avatar opens, until its first pose
         self.seq_codes = sequence_codes
         self.bakes = bakes
         self._keyframe_code = keyframe_code
@@ -41,7 +45,6 @@ class PoseController:
     def reset(self) -> None:
         """Forget what was asked and shown (a new avatar)."""
         self.requested: np.ndarray | None = None
-        self.shown_code: np.ndarray | None = None
         self.shown_frame: int | None = None
         self.requested_frame: int | None = None
         self._frame_of_request: dict[int, int | None] = {}  # pending request id -> sequence frame it shows
@@ -51,18 +54,40 @@ class PoseController:
         self.baked = False  # ... a baked frame
         self.interpolated = False  # ... interpolated between two stored frames of the bake
 
-    def engine_restarted(self) -> None:
-        """A new worker: ask it for the current code again."""
+    def subscriptions(self) -> Subscriptions:
+        """What this controller does when the document changes (npga_view/document.py)."""
+        s = Subscriptions()
+        s.subscribe(AvatarOpened, self._opened)
+        s.subscribe(CloudChanged, self._cloud_changed)
+        s.subscribe(SequenceChanged, self._sequence_changed)
+        return s
+
+    def _opened(self, e: AvatarOpened) -> None:
+        """Forget the last avatar's poses; the first pixels at once: the canonical cloud (labelled) until the
+        worker's first pose arrives, or the pose of an avatar without a worker."""
+        self.reset()
+        self.first_pose_shown = False
+        if self.host.doc.engine is None:
+            self.host.screen.show(e.avatar.pose())
+            self.first_pose_shown = True
+        elif self.canonical_first:
+            self.canonical = True
+            self.host.screen.show(e.avatar.cloud.posed_static())
+
+    def _cloud_changed(self, e: CloudChanged) -> None:
+        """A new worker (on the edited cloud): ask it for the current code again."""
         self.requested = None
         self._frame_of_request = {}
 
-    def sequence_opened(self, n_frames: int, fps: float) -> None:
-        self.playback = Playback(n_frames, fps)
+    def _sequence_changed(self, e: SequenceChanged) -> None:
+        seq = e.sequence
+        self.playback = None if seq is None else Playback(len(seq), seq.fps)
         self.seq_codes.forget()
 
-    def sequence_closed(self) -> None:
-        self.playback = None
-        self.seq_codes.forget()
+    @property
+    def shown_code(self) -> np.ndarray | None:
+        """The expression code of the cloud on screen (the document's)."""
+        return self.host.doc.code
 
     @property
     def codes(self) -> np.ndarray | None:
@@ -77,7 +102,7 @@ class PoseController:
     # ------------------------------------------------------------------------------------------- codes
     def slider_code(self) -> np.ndarray:
         """The code the expression sliders describe."""
-        avatar = self.host.avatar
+        avatar = self.host.doc.avatar
         assert avatar is not None and avatar.expression is not None, "sliders need an expression space"
         st, ex = self.host.state, avatar.expression
         return ex.from_sliders(st.sliders) if st.sliders.size else ex.mean.copy()
@@ -87,7 +112,8 @@ class PoseController:
 
     def code_for_keyframe(self, source: str, preset: str | None) -> np.ndarray:
         """The code a new expression keyframe takes: from the sliders, the sequence frame or a preset."""
-        ex = self.host.avatar.expression if self.host.avatar is not None else None
+        avatar = self.host.doc.avatar
+        ex = avatar.expression if avatar is not None else None
         if ex is None:
             raise ValueError("this avatar has no expression space")
         if source == "frame":
@@ -107,12 +133,12 @@ class PoseController:
         return self.shown_frame if self.shown_frame is not None else self.frame
 
     def following(self) -> bool:
-        return self.host.sequence is not None and self.host.state.follow_sequence
+        return self.host.doc.sequence is not None and self.host.state.follow_sequence
 
     def target_code(self, dt: float) -> np.ndarray | None:
         """The code to show now; advances the playback clock while a sequence is followed."""
         host = self.host
-        a = host.avatar
+        a = host.doc.avatar
         if a is None or a.dynamics is None:
             return None
         if self.following():
@@ -135,7 +161,7 @@ class PoseController:
         """Ask the worker for the target code if it changed, and take its answer."""
         host = self.host
         code = self.target_code(dt)
-        eng = host.engine
+        eng = host.doc.engine
         self.changed = False
         if eng is None:
             return
@@ -164,7 +190,7 @@ class PoseController:
 
     def publish(self, info: AppInfo) -> None:
         """Copy what the panels show into the frame's display snapshot."""
-        eng = self.host.engine
+        eng = self.host.doc.engine
         info.frame = self.frame
         info.posing = eng is not None and eng.pending is not None
         info.engine_status = eng.status if eng is not None else {}
@@ -183,16 +209,14 @@ class PoseController:
         host = self.host
         self.canonical = False
         frame = self._frame_of_request.get(result.request_id)
-        if host.avatar is not None and len(result.posed) == len(host.avatar):
+        if host.doc.avatar is not None and len(result.posed) == len(host.doc.avatar):
             p = result.posed
-            self.shown_code = result.code
-            host.show(PosedGaussians(p.means.copy(), p.quats.copy(), p.scales.copy(), p.opacities.copy(),
-                                     p.sh.copy(), None if p.latent is None else p.latent.copy()))
+            host.screen.show(PosedGaussians(p.means.copy(), p.quats.copy(), p.scales.copy(), p.opacities.copy(),
+                                            p.sh.copy(), None if p.latent is None else p.latent.copy()), result.code)
             if frame is not None:
-                self._frame_of_version[host.content_version] = frame
+                self._frame_of_version[host.doc.version] = frame
         result.release()
         self.timings.update({k: v for k, v in result.timings.items() if k in ("F", "G")})
-        self.shown_code = result.code
         self.preview = bool(result.preview) and not result.baked
         self.baked, self.interpolated = result.baked, result.baked and result.preview
         if frame is not None:  # a preview shows its frame too (playback follows the clock with previews)

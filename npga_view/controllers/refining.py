@@ -18,7 +18,8 @@ import numpy as np
 
 from npga_core.camera.cameras import Camera
 from npga_core.model.avatar import Avatar
-from npga_view.panels.info import AppInfo
+from npga_view.display import AppInfo
+from npga_view.document import AvatarOpened, CloudChanged, Subscriptions
 from npga_view.rendering.pipeline import ViewImage
 from npga_view.rendering.refinement import Refiner
 from npga_view.rendering.renderer import SplatRenderer
@@ -46,6 +47,15 @@ class RefineController:
         """A new avatar (or an edited one): take its CNN and latent statistics."""
         self.refiner.set_avatar(avatar)
         self._key = None
+
+    def subscriptions(self) -> Subscriptions:
+        s = Subscriptions()
+        s.subscribe(AvatarOpened, self._avatar)
+        s.subscribe(CloudChanged, self._avatar)
+        return s
+
+    def _avatar(self, e: AvatarOpened | CloudChanged) -> None:
+        self.set_avatar(e.avatar)
 
     def present(self, camera: Camera, framebuffer, viewport: tuple[int, int, int, int]) -> bool:
         """Present the refined or latent image of the view if it is ready (True), else leave it to the splats."""

@@ -9,9 +9,7 @@ from imgui_bundle import imgui
 
 from npga_core.evaluation.compare import MODES, Mode
 from npga_view import actions as C
-from npga_view.comparison.controller import score_label
-from npga_view.comparison.snapshot import CompareInfo
-from npga_view.comparison.view import PAIRS
+from npga_view.comparison.snapshot import PAIRS, CompareInfo, score_label
 from npga_view.panels.info import AppInfo
 from npga_view.state import ViewerState
 

@@ -536,7 +536,7 @@ def test_window_shows_the_cnn_refined_image_as_render_does(app, tmp_path):
 
 
 def test_an_idle_window_waits_for_input_instead_of_spinning(app, avatar_path, monkeypatch, tmp_path):
-    """Once the view is on screen and nothing is drawn, the loop waits for input (up to idle_wait_s, so worker
+    """Once the view is on screen and nothing is drawn, the loop waits for input (up to its idle wait, so worker
     results still arrive) instead of redrawing as fast as it can; a pose from the worker is still taken and
     drawn while waiting, and playback never waits."""
     import glfw
@@ -546,7 +546,7 @@ def test_an_idle_window_waits_for_input_instead_of_spinning(app, avatar_path, mo
     monkeypatch.setattr(glfw, "wait_events_timeout", lambda t: (waits.append(t), real_wait(t)))
     assert app.open_avatar(avatar_path)
     settle(app)
-    assert run_until(app, lambda: app._was_quiet)
+    assert run_until(app, lambda: app.view.pacing.was_quiet)
     waits.clear()
     app.step()
     assert waits == [pytest.approx(1.0 / 30.0)]
@@ -563,7 +563,7 @@ def test_an_idle_window_waits_for_input_instead_of_spinning(app, avatar_path, mo
     app.state.follow_sequence, app.state.timeline.playing = True, True
     app.step()
     app.step()
-    assert not app._was_quiet
+    assert not app.view.pacing.was_quiet
     waits.clear()
     app.step()
     assert waits == []
