@@ -214,7 +214,7 @@ def test_first_live_image_after_a_settled_view_gets_several_budgets(renderer, po
     given: list[float] = []
     draw = renderer.continue_draw
     monkeypatch.setattr(renderer, "continue_draw", lambda ms: given.append(ms) or draw(ms))
-    sched = DrawScheduler(renderer, budget_ms=30.0, settle_s=0.0)
+    sched = DrawScheduler(renderer, budget_ms=300.0, settle_s=0.0)  # (large: a busy machine's pre-pass fits)
     cam = frame_points(posed.means, 240, 200)
     while not sched.settled:
         sched.frame(cam, "rgb", content_version=1, interacting=False, now=0.0)
@@ -222,7 +222,7 @@ def test_first_live_image_after_a_settled_view_gets_several_budgets(renderer, po
     given.clear()
     live_scale = sched.interactive_scale
     sched.frame(cam, "rgb", content_version=2, interacting=True, now=1.0)
-    assert given and given[0] > 100.0  # (4 x 30 ms less what the frame had spent when it was measured)
+    assert given and given[0] > 300.0  # more than one budget (4 x 300 ms less what the frame had spent)
     assert renderer.image_size == (round(240 * live_scale * FIRST_SCALE), round(200 * live_scale * FIRST_SCALE))
     for _ in range(1000):  # that image finished (drawing continues while frames come)
         if sched.shown_version == 2:
@@ -232,7 +232,7 @@ def test_first_live_image_after_a_settled_view_gets_several_budgets(renderer, po
     given.clear()
     sched.ui_ms = 40.0
     sched.frame(cam, "rgb", content_version=3, interacting=True, now=1.1)  # the stream goes on: a live image
-    assert given and given[0] <= 10.0 + 1e-6
+    assert given and given[0] <= 100.0 + 1e-6  # a third of the budget
 
 
 def test_live_budget_has_no_cliff(renderer):
