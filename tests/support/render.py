@@ -44,8 +44,5 @@ def off_centre_camera(eye, target=(0.0, 0.0, 0.0), fov=40.0) -> Camera:
 
 
 def accumulated(renderer) -> np.ndarray:
-    """The renderer's own image as drawn so far (RGBA float, premultiplied, before `present`), a copy. Read from
-    its private framebuffer: the renderers have no public read of an unfinished or sliced image (the one private
-    touch the renderer tests share, here once)."""
-    w, h = renderer.image_size
-    return renderer._read(renderer._fbo, 0, w, h).copy()
+    """The renderer's finished image (RGBA float, premultiplied, before `present`), a copy."""
+    return renderer.front_rgba().copy()
