@@ -59,7 +59,7 @@ class ViewerApp:
                  threads: int = 2, remember_recent: bool = True, device: str = "cpu",
                  frame_budget_ms: float = 25.0, level_of_detail: bool = True,
                  scheduler: type[DrawScheduler] = DrawScheduler, precision: str = "auto"):
-        self.window: Window | None = Window(width, height, visible, vsync, on_drop=self._on_drop)
+        self.window: Window | None = Window(width, height, visible, vsync, on_drop=self.on_drop)
         self.ctx = self.window.ctx
         self.renderer = create_renderer(self.ctx, 64, 64)  # the 4.3 path, or the 4.1 one (macOS)
         # frame-budgeted drawing; live images from a merged level-of-detail cloud while state.merged_live
@@ -132,7 +132,8 @@ class ViewerApp:
         """Restore camera, sliders, modes and open files from a session file."""
         self.actions.load_session(path)
 
-    def _on_drop(self, window, paths) -> None:
+    def on_drop(self, window, paths) -> None:
+        """Files dropped on the window: each opened as what it is (avatar, sequence, take, session)."""
         self.state.actions.extend(open_action(p) for p in paths)
 
     def _set_title(self, title: str) -> None:

@@ -119,8 +119,9 @@ class AuxiliaryPasses:
         assert out is not None
         return out
 
-    def begin_latent(self, camera: Camera) -> None:
-        """Start the latent image of `camera` (`render_latent` in slices): `continue_latent` draws it."""
+    def begin_latent(self, camera: Camera, first_slice: int | None = None) -> None:
+        """Start the latent image of `camera` (`render_latent` in slices): `continue_latent` draws it, its first
+        slice `first_slice` Gaussians when given (later ones sized by their measured cost)."""
         if self._latent_dim == 0:
             raise ValueError("the uploaded Gaussians have no latent features")
         self._activate()
@@ -131,6 +132,8 @@ class AuxiliaryPasses:
         passes = [(first, min(per_pass, self._latent_dim - first)) for first in range(0, self._latent_dim, per_pass)]
         self._latent_job = _LatentJob(self._prepared, w, h, passes,
                                       np.empty((h, w, self._latent_dim), dtype=np.float32))
+        if first_slice is not None:
+            self._latent_job.slice = max(1, int(first_slice))
 
     @property
     def latent_drawing(self) -> bool:

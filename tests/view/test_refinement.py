@@ -205,16 +205,14 @@ def test_the_latent_pass_in_slices_equals_one_pass(avatar, camera, renderer):
     posed = avatar.pose(None)
     renderer.set_gaussians(posed)
     whole = renderer.render_latent(camera)
-    renderer.begin_latent(camera)
-    renderer._latent_job.slice = 97  # a small first slice, for a cloud this small
+    renderer.begin_latent(camera, first_slice=97)  # a small first slice, for a cloud this small
     calls = 0
     while (got := renderer.continue_latent(0.0)) is None:
         calls += 1
         assert renderer.latent_drawing and calls < 10_000
     assert calls >= 1 and renderer.last_timings["slices"] >= 2
     np.testing.assert_array_equal(got, whole)
-    renderer.begin_latent(camera)
-    renderer._latent_job.slice = 97
+    renderer.begin_latent(camera, first_slice=97)
     assert renderer.continue_latent(0.0) is None
     renderer.set_gaussians(posed)
     assert not renderer.latent_drawing and renderer.continue_latent(0.0) is None

@@ -274,7 +274,7 @@ def test_drop_files_and_rig_cameras(app, avatar_path, tmp_path):
     assert app.open_avatar(avatar_path)
     ex = app.avatar.expression
     np.save(tmp_path / "codes.npy", np.stack([ex.mean] * 5))
-    app._on_drop(app.window, [str(tmp_path / "codes.npy")])
+    app.on_drop(app.window, [str(tmp_path / "codes.npy")])
     app.step()
     assert app.sequence is not None and len(app.sequence) == 5
     # a two-camera rig in NeRSemble's layout: world_2_cam per serial, shared intrinsics
