@@ -501,6 +501,7 @@ class SplatRenderer(AuxiliaryPasses):
         self.last_timings["slices"] = float(job.slices)
         self.last_timings["visible"] = float(job.total)
         self.last_timings["points"] = float(job.points)
+        self.last_timings["oversize"] = float(self._oversize)  # splats too large for a GL point (drawn as quads)
         if external is None:
             self._targets[0], self._targets[1] = self._targets[1], self._targets[0]
             self._size = (0, 0) if self._targets[1] is None else self._targets[1][0].size

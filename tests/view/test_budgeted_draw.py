@@ -87,7 +87,7 @@ def test_oversize_splats_fall_back_to_quads(make_renderer, posed):
         r.set_gaussians(big)
         cam = frame_points(posed.means, 400, 350)
         points_allowed = r.render(cam)
-        assert r._oversize >= 1 and r.last_timings["points"] == 0.0
+        assert r.last_timings["oversize"] >= 1 and r.last_timings["points"] == 0.0
         r.use_points = False
         np.testing.assert_array_equal(points_allowed, r.render(cam))
     finally:
