@@ -33,14 +33,16 @@ def test_renderer_measures_both_paths_and_keeps_the_image(ctx):
         cam = frame_points(posed.means, 200, 180)
         assert r.use_points is None  # measured choice by default
         images, paths = [], []
-        for _ in range(3):
+        for _ in range(2):
             images.append(r.render(cam))
             paths.append(r.last_timings["points"])
-        assert paths[:2] == [1.0, 0.0]  # the prior (points at this size), then quads once to compare
+        assert paths == [1.0, 0.0]  # the prior (points at this size), then quads once to compare
         b = r.path_costs.bucket(200, 180)
         assert (b, True) in r.path_costs.cost and (b, False) in r.path_costs.cost
+        # (read before the third image: its own time updates the costs, which on a busy machine may flip them)
         cheaper = r.path_costs.cost[(b, True)] <= r.path_costs.cost[(b, False)]
-        assert paths[2] == float(cheaper)
+        images.append(r.render(cam))
+        assert r.last_timings["points"] == float(cheaper)
         for image in images[1:]:
             np.testing.assert_array_equal(image, images[0])
         r.use_points = False  # forced paths are not recorded
