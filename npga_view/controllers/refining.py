@@ -91,9 +91,8 @@ class RefineController:
         if not self.draws.settled:  # the view changed: a refinement still running is of a view left behind
             self.refiner.cancel()
             self._drop_latent()
+        if not self.draws.settled or self.draws.interacting:  # (or a change is on its way: its image first)
             ready = key == self._key  # no new splat image yet: the refined one of the image on screen stays
-        elif self.draws.interacting:  # a change is on its way (a packet's pose, a drag): its image first
-            ready = key == self._key
         else:
             ready = key == self._key or self._compute(key, what, camera, bg)
         if not ready:
