@@ -1,5 +1,6 @@
 """A Gaussian-Head-Avatar checkpoint driven by an ARKit take through a basis fitted from a paired take and the
-avatar's tracked codes, end to end through the command line (each command its own process, exit 0):
+avatar's tracked codes, end to end through the command line (each command its own process, a forked child of the
+project's fork server; exit 0):
 
 1. the paired data: a 30 Hz Live Link Face take (on the app's 60-count timecode, FF stepping by 2, as the app writes
    30 Hz takes) and, for the same frames, GHA tracking output (`params/NNNN/params.npz` with ``exp_coeff`` (1, E),
@@ -15,9 +16,6 @@ avatar's tracked codes, end to end through the command line (each command its ow
 
 from __future__ import annotations
 
-import os
-import subprocess
-import sys
 from pathlib import Path
 
 import numpy as np
@@ -36,12 +34,21 @@ ROWS, RATE, NOISE = 150, 30, 0.01
 DEAD = ("tongueOut", "cheekPuff", "noseSneerLeft", "noseSneerRight", "mouthRollUpper")  # never moved in the take
 
 
-def _cli(*argv: str) -> str:
-    env = dict(os.environ, PYTHONPATH=os.pathsep.join([str(ROOT), os.environ.get("PYTHONPATH", "")]))
-    r = subprocess.run([sys.executable, "-m", "npga_view.cli", *argv], cwd=ROOT, env=env, capture_output=True,
-                       text=True, timeout=600)
-    assert r.returncode == 0, (argv, r.stdout[-2000:], r.stderr[-2000:])
-    return r.stdout + r.stderr
+@pytest.fixture(scope="module")
+def cli(tmp_path_factory):
+    """`npga-view ARGV` in its own process: a forked child of the project's fork server
+    (tests/support/cli_forkserver.py), which imports the project once."""
+    from tests.support.cli_forkserver import ForkServer
+
+    server = ForkServer(tmp_path_factory.mktemp("gha_take_cli"), env={"DISPLAY": "", "WAYLAND_DISPLAY": ""})
+
+    def run(*argv: str) -> str:
+        reply, out, err = server.cli(*argv)
+        assert reply["exit"] == 0, (argv, reply, out[-2000:], err[-2000:])
+        return out + err
+
+    yield run
+    server.close()
 
 
 def _write_take(path: Path, w: np.ndarray, columns: list[str]) -> None:
@@ -82,14 +89,14 @@ def paired(tmp_path_factory):
     return tmp, ckpt, w, (truth_a, truth_b), takes, tracking
 
 
-def test_a_gha_avatar_is_driven_by_a_take_through_a_basis_fitted_from_tracked_codes(paired):
+def test_a_gha_avatar_is_driven_by_a_take_through_a_basis_fitted_from_tracked_codes(paired, cli):
     tmp, ckpt, w, (truth_a, truth_b), takes, tracking = paired
     e = SMALL["exp_dim"]
     basis_path, into = tmp / "basis.npz", tmp / "with_basis.npga"
-    text = _cli("fit-blendshapes", "--take", str(takes["app_order"]), "--codes", str(tracking), "--out",
+    text = cli("fit-blendshapes", "--take", str(takes["app_order"]), "--codes", str(tracking), "--out",
                 str(basis_path))
     assert f"from {ROWS} frames at 30 fps" in text and f"{len(DEAD)} shapes never move" in text
-    _cli("fit-blendshapes", "--take", str(takes["packet_order"]), "--codes", str(tracking), "--into", str(ckpt),
+    cli("fit-blendshapes", "--take", str(takes["packet_order"]), "--codes", str(tracking), "--into", str(ckpt),
          "--out", str(into))
     basis, own = read_basis(basis_path), read_avatar(into).blendshapes
     assert own is not None and sorted(own.names) == sorted(basis.names)
@@ -103,11 +110,11 @@ def test_a_gha_avatar_is_driven_by_a_take_through_a_basis_fitted_from_tracked_co
     for k in (0, 77):  # frame K is row K of the 30 Hz take
         z = tmp / f"z{k}.npy"
         np.save(z, fitted[k].astype(np.float32))
-        want = read_ply(Path(_ply(tmp, f"expr{k}", "export", str(ckpt), "--expr", str(z))))
+        want = read_ply(Path(_ply(cli, tmp, f"expr{k}", "export", str(ckpt), "--expr", str(z))))
         for order, take in takes.items():
-            got = {"--basis": _ply(tmp, f"{order}{k}b", "export", str(ckpt), "--basis", str(basis_path),
+            got = {"--basis": _ply(cli, tmp, f"{order}{k}b", "export", str(ckpt), "--basis", str(basis_path),
                                    "--sequence", str(take), "--frame", str(k)),
-                   "--into": _ply(tmp, f"{order}{k}i", "export", str(into), "--sequence", str(take),
+                   "--into": _ply(cli, tmp, f"{order}{k}i", "export", str(into), "--sequence", str(take),
                                   "--frame", str(k))}
             for how, path in got.items():
                 g = read_ply(Path(path))
@@ -121,7 +128,7 @@ def test_a_gha_avatar_is_driven_by_a_take_through_a_basis_fitted_from_tracked_co
     assert np.abs(a.means - b.means).max() > 1e-3
 
 
-def _ply(tmp: Path, name: str, *argv: str) -> str:
+def _ply(cli, tmp: Path, name: str, *argv: str) -> str:
     out = tmp / f"{name}.ply"
-    _cli(*argv, "--out", str(out))
+    cli(*argv, "--out", str(out))
     return str(out)

@@ -176,14 +176,22 @@ def test_cli_import_and_info(world, tmp_path):
 
 @pytest.mark.slow
 def test_hostile_flame_pickles(world, tmp_path):
+    """`npga-view import gaussian-avatars --flame-model BAD.pkl` (a forked child per pickle, the project's fork
+    server: tests/support/cli_forkserver.py): exit 2, one line naming the pickle, nothing written, no payload run."""
+    from tests.support.cli_forkserver import ForkServer
     from tests.support.hostile_readers_corpus import flame_pickles
 
-    for name, path in flame_pickles(tmp_path / "cases", world["flame"]).items():
-        out = tmp_path / f"{name.replace(' ', '_')}.npga"
-        r = _cli("import", "gaussian-avatars", world["folder"], "--flame-model", path, "--out", out, cwd=tmp_path)
-        lines = r.stderr.strip().splitlines()
-        assert r.returncode == 2 and len(lines) == 1 and str(path) in lines[0], (name, r.stderr)
-        assert not out.exists() and not (tmp_path / "PWNED").exists(), name
+    server = ForkServer(tmp_path, env={"DISPLAY": "", "WAYLAND_DISPLAY": "", "HOME": str(tmp_path)})
+    try:
+        for name, path in flame_pickles(tmp_path / "cases", world["flame"]).items():
+            out = tmp_path / f"{name.replace(' ', '_')}.npga"
+            reply, _, err = server.cli("import", "gaussian-avatars", str(world["folder"]), "--flame-model", str(path),
+                                       "--out", str(out))
+            lines = err.strip().splitlines()
+            assert reply["exit"] == 2 and len(lines) == 1 and str(path) in lines[0], (name, reply, err)
+            assert not out.exists() and not (tmp_path / "PWNED").exists(), name
+    finally:
+        server.close()
 
 
 def test_fast_frame_matches_the_reference_path(world):

@@ -409,7 +409,6 @@ def cli(tmp_path_factory: pytest.TempPathFactory):
                                      "XDG_CACHE_HOME": str(folder / "cache")})
     yield server, folder
     server.close()
-    server.proc.stdout.close()  # (ForkServer.close leaves its reply pipe open)
 
 
 @pytest.mark.slow

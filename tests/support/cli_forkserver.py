@@ -113,6 +113,7 @@ class ForkServer:
                                      stdin=subprocess.PIPE, stdout=subprocess.PIPE,
                                      env={**os.environ, "PYTHONPATH": str(root), **(env or {})})
         self.cwd = str(cwd)
+        self._calls = 0
         line = self.proc.stdout.readline()
         if not line.startswith("{"):
             raise RuntimeError(f"fork server did not start (exit {self.proc.poll()})")
@@ -122,12 +123,24 @@ class ForkServer:
         self.proc.stdin.flush()
         return json.loads(self.proc.stdout.readline())
 
+    def cli(self, *argv: str, timeout: float = TIMEOUT_S, limit_mb: int = LIMIT_MB) -> tuple[dict, str, str]:
+        """`npga-view ARGV` in a forked child: (the reply, its stdout, its stderr)."""
+        self._calls += 1
+        out, err = (Path(self.cwd) / f".forkserver-{self._calls}.{name}" for name in ("out", "err"))
+        reply = self.run({"argv": list(argv), "stdout": str(out), "stderr": str(err), "timeout": timeout,
+                          "limit_mb": limit_mb})
+        texts = out.read_text(errors="replace"), err.read_text(errors="replace")
+        out.unlink()
+        err.unlink()
+        return reply, *texts
+
     def close(self) -> None:
         self.proc.stdin.close()
         try:
             self.proc.wait(timeout=30)
         except subprocess.TimeoutExpired:
             self.proc.kill()
+        self.proc.stdout.close()
 
 
 if __name__ == "__main__":

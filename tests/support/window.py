@@ -58,7 +58,10 @@ def click(app, name, frames=2):
         app.step()
 def until_changed(app, before: np.ndarray, timeout: float = 180.0, min_fraction: float = 0.002) -> np.ndarray:
     """Step the window until its viewport differs from `before` (a generous bound, not a rate), then until two
-    reads agree (the image settled)."""
+    reads agree (the image settled). The statistics overlay must be off (before `before` is read): its figures
+    change every frame over the view, so two reads agreed only by chance (a GHA window test waited ~10 s per image).
+    """
+    assert not app.state.show_stats, "switch the statistics overlay off before reading the view"
     end = time.monotonic() + timeout
     now = before
     while time.monotonic() < end:

@@ -27,6 +27,7 @@ def window(display, tmp_path_factory):
     from npga_view.app import ViewerApp
 
     app = ViewerApp(900, 700, vsync=False, threads=1, remember_recent=False)
+    app.state.show_stats = False  # its figures change from frame to frame over the view
     yield app, root
     app.close()
     mp.undo()
@@ -37,6 +38,8 @@ def test_window_on_an_imported_gha_checkpoint(window):
     app, root = window
     folder = write_gha_folder(root / "ckpt", n=2500, seed=5, **SMALL)
     data = write_gha_params(root / "data", frames=6, exp_dim=SMALL["exp_dim"])
+    for _ in range(3):  # the empty view drawn (the back buffer before the first frame holds anything)
+        app.step()
     blank = app.read_window(viewport_only=True)
     app.state.use_cnn = False  # the raw splats: the first three colour channels
     assert app.open_avatar(str(folder))
