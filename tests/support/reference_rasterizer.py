@@ -26,6 +26,7 @@ SH_C2 = (1.0925484305920792, -1.0925484305920792, 0.31539156525252005, -1.092548
 SH_C3 = (-0.5900435899266435, 2.890611442640554, -0.4570457994644658, 0.3731763325901154, -0.4570457994644658,
          1.445305721320277, -0.5900435899266435)
 BLOCK = 16
+CHUNK = 256  # Gaussians composited at once per tile (a tile whose pixels all ended skips the rest)
 
 
 def quat_to_rotation(q: np.ndarray) -> np.ndarray:
@@ -112,13 +113,30 @@ def project(means, quats, scales, opacities, sh, camera, near: float = 0.01) -> 
             "opacity": np.asarray(opacities, np.float64), "valid": valid, "rect": rect}
 
 
+def _pixel_boxes(p: dict[str, np.ndarray], tile_rect: bool) -> np.ndarray:
+    """Per Gaussian, the pixels it may touch as (x0, y0, x1, y1), unclipped: its tile rectangle (3DGS), or the box
+    where its alpha can reach 1/255 (`tile_rect=False`)."""
+    if tile_rect:
+        return p["rect"] * BLOCK
+    ca, cb, cc = p["conic"].T
+    with np.errstate(divide="ignore", invalid="ignore"):
+        reach = np.sqrt(2 * np.log(np.maximum(255 * p["opacity"], 1.0)))[:, None] * np.sqrt(
+            np.stack([cc, ca], 1) / (ca * cc - cb**2)[:, None])
+    lo, hi = np.floor(p["uv"] - reach), np.ceil(p["uv"] + reach)
+    big = 2.0**40
+    return np.clip(np.concatenate([lo, hi], 1), -big, big).astype(np.int64)
+
+
 def rasterize(means, quats, scales, opacities, sh, camera, background=(0.0, 0.0, 0.0), latent=None,
               near: float = 0.01, early_stop: bool = True, tile_rect: bool = True) -> dict[str, np.ndarray]:
     """Render like 3DGS. Returns rgb (H,W,3) = C + T bg, depth (H,W) = sum w_i z_i, alpha (H,W) = 1 - T,
     and latent (H,W,Hdim) composited like colour (no background) when `latent` (N,Hdim) is given.
 
-    `early_stop=False` composites every Gaussian (what blending computes); `tile_rect=False` lets a Gaussian
-    reach every pixel where its alpha >= 1/255 instead of only those in its tile rectangle.
+    As renderCUDA, tile by tile: the tile's Gaussians front to back, each pixel's transmittance the running product
+    of (1 - alpha) over the Gaussians that hit it (power <= 0, alpha >= 1/255), its walk ending before the one that
+    would bring it below 1e-4. `early_stop=False` composites every Gaussian (what blending computes);
+    `tile_rect=False` lets a Gaussian reach every pixel where its alpha >= 1/255 instead of only those in its tile
+    rectangle.
     """
     p = project(means, quats, scales, opacities, sh, camera, near)
     width, height = camera.width, camera.height
@@ -126,42 +144,44 @@ def rasterize(means, quats, scales, opacities, sh, camera, background=(0.0, 0.0,
     if latent is not None:
         feats.append(np.asarray(latent, np.float64))
     feats = np.concatenate(feats, 1)
-    nf = feats.shape[1]
-    acc = np.zeros((height, width, nf))
+    acc = np.zeros((height, width, feats.shape[1]))
     trans = np.ones((height, width))
-    alive = np.ones((height, width), bool)
     order = np.flatnonzero(p["valid"])
     order = order[np.argsort(p["depth"][order], kind="stable")]
-    for g in order:
-        if tile_rect:
-            x0, y0, x1, y1 = (int(v) for v in p["rect"][g] * BLOCK)
-        else:
-            r = np.sqrt(2 * np.log(max(255 * p["opacity"][g], 1.0))) * np.sqrt(p["conic"][g][[2, 0]] / (
-                p["conic"][g][0] * p["conic"][g][2] - p["conic"][g][1] ** 2))
-            x0, x1 = int(np.floor(p["uv"][g, 0] - r[0])), int(np.ceil(p["uv"][g, 0] + r[0]))
-            y0, y1 = int(np.floor(p["uv"][g, 1] - r[1])), int(np.ceil(p["uv"][g, 1] + r[1]))
-        x0, x1 = max(x0, 0), min(x1, width)
-        y0, y1 = max(y0, 0), min(y1, height)
-        if x1 <= x0 or y1 <= y0:
-            continue
-        dx = (np.arange(x0, x1) + 0.5 - p["uv"][g, 0])[None, :]
-        dy = (np.arange(y0, y1) + 0.5 - p["uv"][g, 1])[:, None]
-        ca, cb, cc = p["conic"][g]
-        power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
-        alpha = np.minimum(0.99, p["opacity"][g] * np.exp(power))
-        live = alive[y0:y1, x0:x1]
-        hit = live & (power <= 0) & (alpha >= 1.0 / 255.0)
-        if not hit.any():
-            continue
-        t_old = trans[y0:y1, x0:x1]
-        t_new = t_old * (1 - alpha)
-        if early_stop:
-            stop = hit & (t_new < 1e-4)
-            live[stop] = False
-            hit &= ~stop
-        w = np.where(hit, alpha * t_old, 0.0)
-        acc[y0:y1, x0:x1] += w[..., None] * feats[g]
-        trans[y0:y1, x0:x1] = np.where(hit, t_new, t_old)
+    box = _pixel_boxes(p, tile_rect)[order]
+    for y0 in range(0, height, BLOCK):
+        for x0 in range(0, width, BLOCK):
+            x1, y1 = min(x0 + BLOCK, width), min(y0 + BLOCK, height)
+            ys, xs = np.mgrid[y0:y1, x0:x1]
+            xs, ys = xs.ravel(), ys.ravel()
+            on = (box[:, 0] < x1) & (box[:, 2] > x0) & (box[:, 1] < y1) & (box[:, 3] > y0)
+            t, c, alive = np.ones(len(xs)), np.zeros((len(xs), feats.shape[1])), np.ones(len(xs), bool)
+            for part in np.array_split(np.flatnonzero(on), max(1, int(on.sum()) // CHUNK)):
+                if len(part) == 0 or not alive.any():
+                    continue
+                g, b = order[part], box[part]
+                dx = xs[None, :] + 0.5 - p["uv"][g, 0:1]
+                dy = ys[None, :] + 0.5 - p["uv"][g, 1:2]
+                ca, cb, cc = (p["conic"][g, k:k + 1] for k in range(3))
+                power = -0.5 * (ca * dx * dx + cc * dy * dy) - cb * dx * dy
+                alpha = np.minimum(0.99, p["opacity"][g, None] * np.exp(power))
+                inside = (xs >= b[:, 0:1]) & (xs < b[:, 2:3]) & (ys >= b[:, 1:2]) & (ys < b[:, 3:4])
+                hit = inside & (power <= 0) & (alpha >= 1.0 / 255.0) & alive
+                a = np.where(hit, alpha, 0.0)
+                after = t * np.cumprod(1 - a, axis=0)  # the transmittance after each Gaussian
+                before = np.concatenate([t[None], after[:-1]])
+                if early_stop:  # the walk ends before the first Gaussian that would bring T below 1e-4
+                    stop = hit & (after < 1e-4)
+                    stops = stop.any(axis=0)
+                    first = np.where(stops, np.argmax(stop, axis=0), len(g))
+                    ended = np.arange(len(g))[:, None] >= first
+                    a = np.where(ended, 0.0, a)
+                    alive &= ~stops
+                    after = np.where(ended, before[np.minimum(first, len(g) - 1), np.arange(len(xs))], after)
+                c += (a * before).T @ feats[g]
+                t = after[-1]
+            acc[ys, xs] = c
+            trans[ys, xs] = t
     bg = np.asarray(background, np.float64).reshape(3)
     out = {"rgb": acc[..., :3] + trans[..., None] * bg, "depth": acc[..., 3], "alpha": 1.0 - trans}
     if latent is not None:
