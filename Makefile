@@ -8,15 +8,19 @@ STAMP := $(VENV)/.installed
 view: $(STAMP)
 	$(VENV)/bin/npga-view $(ARGS)
 
+# in TEST_WORKERS processes (pytest-xdist), each test file whole in one of them; TEST_WORKERS=0: in this process
+TEST_WORKERS ?= 2
+XDIST = $(if $(filter 0,$(TEST_WORKERS)),,-n $(TEST_WORKERS) --dist loadfile)
+
 test: $(STAMP)
-	$(VENV)/bin/python -m pytest $(PYTEST_ARGS)
+	$(VENV)/bin/python -m pytest $(XDIST) $(PYTEST_ARGS)
 
 # markers in pyproject.toml: slow (over ~10 s each), gui (the real window under Xvfb)
 test-fast: $(STAMP)
-	$(VENV)/bin/python -m pytest -q -m "not slow and not gui" $(PYTEST_ARGS)
+	$(VENV)/bin/python -m pytest $(XDIST) -q -m "not slow and not gui" $(PYTEST_ARGS)
 
 test-gui: $(STAMP)
-	$(VENV)/bin/python -m pytest -q -m gui $(PYTEST_ARGS)
+	$(VENV)/bin/python -m pytest $(XDIST) -q -m gui $(PYTEST_ARGS)
 
 install: $(STAMP)
 
