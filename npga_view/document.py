@@ -109,7 +109,7 @@ class Document(Subscriptions):
     def open(self, avatar: Avatar) -> None:
         """Make `avatar` the open one: the last worker stops, one starts for an animatable avatar with a file,
         the cloud on screen is forgotten; then `AvatarOpened`."""
-        self.close_engine()
+        self.close_engine(wait=False)
         self.avatar = avatar
         self.posed = self.code = None
         if avatar.dynamics is not None and avatar.source:
@@ -136,17 +136,18 @@ class Document(Subscriptions):
         return self.version
 
     def _start_engine(self, path: str) -> None:
-        self.close_engine()
+        self.close_engine(wait=False)
         a = self.avatar
         assert a is not None
         o = self.engine_options
         self.engine = PoseEngine(path, len(a), a.cloud.sh.shape[1], a.cloud.latent_dim, threads=o.threads,
                                  device=o.device, precision=o.precision)
 
-    def close_engine(self) -> None:
-        """Stop the worker (its shared memory unlinked); safe to call twice."""
+    def close_engine(self, wait: bool = True) -> None:
+        """Stop the worker (its shared memory unlinked); safe to call twice. `wait=False` (a worker replaced by
+        another avatar's or an edited cloud's): it stops in the background, the frame goes on."""
         if self.engine is not None:
-            self.engine.close()
+            self.engine.close(wait)
             self.engine = None
 
     # ---------------------------------------------------------------------------------------------- reads

@@ -39,7 +39,7 @@ from typing import Any
 import numpy as np
 
 from npga_core.model.gaussians import PosedGaussians
-from npga_core.posing.lifetime import shutdown_worker
+from npga_core.posing.lifetime import shutdown_in_background, shutdown_worker
 from npga_core.posing.messages import (  # noqa: F401  (EngineOptions, BakeStatus, Layout, peak_rss_mb: public here)
     FREE,
     MODES,
@@ -248,10 +248,16 @@ class PoseEngine:
         """Names of the shared-memory slots (for leak checks)."""
         return [s.name for s in self._shms]
 
-    def close(self) -> None:
-        """Stop the worker and free the shared memory (idempotent)."""
+    def close(self, wait: bool = True) -> None:
+        """Stop the worker and free the shared memory (idempotent); `wait=False`: in a background thread (a
+        worker being replaced: the caller does not wait for its current job to end)."""
         self._views = []
-        self._finalizer()
+        if wait:
+            self._finalizer()
+            return
+        detached = self._finalizer.detach()
+        if detached is not None:
+            shutdown_in_background(*detached[2])
 
     def __enter__(self) -> PoseEngine:
         return self

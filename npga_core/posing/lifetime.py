@@ -5,11 +5,14 @@ leaves no shared memory behind.
   is gone (SIGKILL, crash, or its engine dropped), unlinks the shared-memory segments the parent can no longer
   unlink, and exits the worker at once (`ORPHAN_EXIT`).
 - In the parent, `shutdown_worker` (run by `PoseEngine.close`, by garbage collection of the engine and at
-  interpreter exit through `weakref.finalize`) asks the worker to stop, kills it after 5 s, and unlinks.
+  interpreter exit through `weakref.finalize`) asks the worker to stop, kills it after 5 s, and unlinks;
+  `shutdown_in_background` does the same in a thread for a worker being replaced (an edit, another avatar), and
+  interpreter exit waits for those.
 """
 
 from __future__ import annotations
 
+import atexit
 import contextlib
 import multiprocessing as mp
 import os
@@ -73,3 +76,27 @@ def shutdown_worker(proc: mp.process.BaseProcess, req: mp.queues.Queue | None,
             s.close()
         with contextlib.suppress(FileNotFoundError):
             s.unlink()
+
+
+_PENDING: list[threading.Thread] = []  # shutdowns running in the background (`shutdown_in_background`)
+
+
+def shutdown_in_background(proc: mp.process.BaseProcess, req: mp.queues.Queue | None,
+                           shms: list[shared_memory.SharedMemory]) -> threading.Thread:
+    """`shutdown_worker` in a thread, for a worker being replaced: the UI does not wait for it to finish its job
+    and exit (0.6-1.6 s for the demo's worker). Interpreter exit waits for every pending one (atexit)."""
+    t = threading.Thread(target=shutdown_worker, args=(proc, req, shms), name="npga-worker-shutdown", daemon=True)
+    _PENDING[:] = [p for p in _PENDING if p.is_alive()]
+    _PENDING.append(t)
+    t.start()
+    return t
+
+
+def wait_for_shutdowns(timeout_s: float = 15.0) -> None:
+    """Wait (bounded) for the background shutdowns: their workers stopped, their slots unlinked."""
+    end = time.monotonic() + timeout_s
+    for t in list(_PENDING):
+        t.join(max(0.0, end - time.monotonic()))
+
+
+atexit.register(wait_for_shutdowns)

@@ -120,6 +120,7 @@ class Refiner:
         self._pool: ThreadPoolExecutor | None = None
         self._job: tuple[object, Future, dict[str, float], threading.Event] | None = None
         self._lock = threading.Lock()
+        self._source: object = None  # the avatar's CNN that `cnn` is a copy of
 
     # --- avatar -------------------------------------------------------------------------------------
     def set_avatar(self, avatar: Avatar | None) -> None:
@@ -128,10 +129,13 @@ class Refiner:
         self.cancel()
         cnn = None if avatar is None else avatar.cnn
         latent = None if avatar is None else avatar.cloud.latent
-        self.latent_dim = 0 if latent is None else int(latent.shape[1])
-        self.cnn = None
-        self._traced = None
-        if cnn is not None and cnn.config.in_channels == cnn.config.input_channels(self.latent_dim):
+        latent_dim = 0 if latent is None else int(latent.shape[1])
+        same = cnn is not None and cnn is self._source and latent_dim == self.latent_dim
+        self.latent_dim, self._source = latent_dim, cnn
+        if not same:  # (an edit keeps the avatar's CNN: its copy and trace, 0.4 s for the demo's, are kept)
+            self.cnn = None
+            self._traced = None
+        if not same and cnn is not None and cnn.config.in_channels == cnn.config.input_channels(self.latent_dim):
             self.cnn = copy.deepcopy(cnn).to(self.device).eval()
             for p in self.cnn.parameters():
                 p.requires_grad_(False)

@@ -88,3 +88,20 @@ def test_close_twice_and_dropping_an_engine_stop_the_worker(small_npga):
     while proc.is_alive() and time.monotonic() < end:
         time.sleep(0.05)
     assert not proc.is_alive() and not any(_shm_exists(n) for n in names)
+
+
+@pytest.mark.slow
+def test_a_replaced_worker_stops_in_the_background(small_npga):
+    """close(wait=False) (a worker replaced after an edit or by another avatar) returns at once; the worker still
+    stops and its slots are unlinked, and `wait_for_shutdowns` (run at interpreter exit) waits for that."""
+    from npga_core.posing.lifetime import wait_for_shutdowns
+
+    a, eng = _engine(small_npga)
+    eng.request(a.neutral_code())
+    eng.wait().release()
+    names, proc = eng.shm_names, eng.process
+    eng.request(a.expression.sample(np.random.default_rng(1)))  # (a job under way)
+    eng.close(wait=False)
+    eng.close()  # idempotent after a background close too
+    wait_for_shutdowns(timeout_s=60)  # a bound on waiting, not a speed
+    assert not proc.is_alive() and not any(_shm_exists(n) for n in names)

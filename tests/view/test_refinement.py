@@ -401,3 +401,29 @@ def test_an_avatar_of_0_gaussians_with_latent_features(ctx, camera, renderer):
         assert out is not None and out.shape == (H, W, 3) and np.isfinite(out).all()
     finally:
         r.release()
+
+
+def test_an_edit_keeps_the_cnn_copy_a_new_avatar_replaces_it(ctx, small_npga):
+    """An edited cloud (the same avatar, its CNN untouched) keeps the refiner's CNN copy and trace (0.4 s of the
+    edit's frame on the demo); another avatar's CNN, even an equal one, is copied again."""
+    from npga_core.editing.commands import DeleteSelected
+    from npga_core.editing.edits import EditSession
+    from npga_view.rendering.refinement import Refiner
+
+    avatar = read_avatar(small_npga)
+    r = Refiner(ctx)
+    try:
+        r.set_avatar(avatar)
+        copy, n = r.cnn, len(avatar)
+        session = EditSession(avatar)
+        session.select(np.arange(n) < 10)
+        session.run(DeleteSelected())
+        assert len(session.avatar) == n - 10
+        r.set_avatar(session.avatar)
+        assert r.cnn is copy  # (its trace is kept with it)
+        r.set_avatar(read_avatar(small_npga))
+        assert r.cnn is not copy and r.cnn is not None
+        r.set_avatar(None)
+        assert r.cnn is None and not r.has_cnn
+    finally:
+        r.release()
