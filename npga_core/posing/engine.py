@@ -257,7 +257,7 @@ class PoseEngine:
             return
         detached = self._finalizer.detach()
         if detached is not None:
-            shutdown_in_background(*detached[2])
+            shutdown_in_background(*detached[2], self._res, self._slots)
 
     def __enter__(self) -> PoseEngine:
         return self

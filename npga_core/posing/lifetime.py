@@ -82,14 +82,23 @@ _PENDING: list[threading.Thread] = []  # shutdowns running in the background (`s
 
 
 def shutdown_in_background(proc: mp.process.BaseProcess, req: mp.queues.Queue | None,
-                           shms: list[shared_memory.SharedMemory]) -> threading.Thread:
+                           shms: list[shared_memory.SharedMemory], *keep: object) -> threading.Thread:
     """`shutdown_worker` in a thread, for a worker being replaced: the UI does not wait for it to finish its job
-    and exit (0.6-1.6 s for the demo's worker). Interpreter exit waits for every pending one (atexit)."""
-    t = threading.Thread(target=shutdown_worker, args=(proc, req, shms), name="npga-worker-shutdown", daemon=True)
+    and exit (0.6-1.6 s for the demo's worker). `keep`: the other objects the worker was started with (its result
+    queue, shared arrays), held until it has exited: a worker still starting unpickles their semaphores, which
+    vanish with the last reference. Interpreter exit waits for every pending one (atexit)."""
+    t = threading.Thread(target=_shutdown_keeping, args=(proc, req, shms, keep), name="npga-worker-shutdown",
+                         daemon=True)
     _PENDING[:] = [p for p in _PENDING if p.is_alive()]
     _PENDING.append(t)
     t.start()
     return t
+
+
+def _shutdown_keeping(proc: mp.process.BaseProcess, req: mp.queues.Queue | None,
+                      shms: list[shared_memory.SharedMemory], keep: tuple[object, ...]) -> None:
+    shutdown_worker(proc, req, shms)
+    del keep  # (released only now that the worker is gone)
 
 
 def wait_for_shutdowns(timeout_s: float = 15.0) -> None:

@@ -105,3 +105,26 @@ def test_a_replaced_worker_stops_in_the_background(small_npga):
     eng.close()  # idempotent after a background close too
     wait_for_shutdowns(timeout_s=60)  # a bound on waiting, not a speed
     assert not proc.is_alive() and not any(_shm_exists(n) for n in names)
+
+
+@pytest.mark.slow
+def test_a_worker_replaced_while_it_starts_stops_cleanly(small_npga, capfd):
+    """An engine closed in the background before its worker has started (an edit right after opening): the
+    worker still starts from what it was handed, stops, and prints nothing (its queues' semaphores were once
+    freed with the engine, and the starting worker died in a traceback)."""
+    import gc
+
+    from npga_core.posing.lifetime import wait_for_shutdowns
+
+    procs = []
+    for _ in range(3):
+        _, eng = _engine(small_npga)
+        procs.append((eng.process, eng.shm_names))
+        eng.close(wait=False)
+        del eng
+        gc.collect()
+    wait_for_shutdowns(timeout_s=120)  # a bound on waiting, not a speed
+    err = capfd.readouterr().err
+    assert "Traceback" not in err, err[-2000:]
+    for proc, names in procs:
+        assert not proc.is_alive() and proc.exitcode == 0 and not any(_shm_exists(n) for n in names)
