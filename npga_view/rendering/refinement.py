@@ -130,16 +130,16 @@ class Refiner:
         cnn = None if avatar is None else avatar.cnn
         latent = None if avatar is None else avatar.cloud.latent
         latent_dim = 0 if latent is None else int(latent.shape[1])
+        # an edit keeps the avatar's CNN: its copy and trace (0.4 s for the demo's) are kept
         same = cnn is not None and cnn is self._source and latent_dim == self.latent_dim
         self.latent_dim, self._source = latent_dim, cnn
-        if not same:  # (an edit keeps the avatar's CNN: its copy and trace, 0.4 s for the demo's, are kept)
-            self.cnn = None
-            self._traced = None
-        if not same and cnn is not None and cnn.config.in_channels == cnn.config.input_channels(self.latent_dim):
-            self.cnn = copy.deepcopy(cnn).to(self.device).eval()
-            for p in self.cnn.parameters():
-                p.requires_grad_(False)
-            self._traced = _traced_copy(self.cnn, self.cnn.config.in_channels, self.device)
+        if not same:
+            self.cnn, self._traced = None, None
+            if cnn is not None and cnn.config.in_channels == cnn.config.input_channels(latent_dim):
+                self.cnn = copy.deepcopy(cnn).to(self.device).eval()
+                for p in self.cnn.parameters():
+                    p.requires_grad_(False)
+                self._traced = _traced_copy(self.cnn, self.cnn.config.in_channels, self.device)
         self._pca = None
         self._ranges = []
         if self.latent_dim:

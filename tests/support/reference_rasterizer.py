@@ -171,15 +171,11 @@ def rasterize(means, quats, scales, opacities, sh, camera, background=(0.0, 0.0,
                 after = t * np.cumprod(1 - a, axis=0)  # the transmittance after each Gaussian
                 before = np.concatenate([t[None], after[:-1]])
                 if early_stop:  # the walk ends before the first Gaussian that would bring T below 1e-4
-                    stop = hit & (after < 1e-4)
-                    stops = stop.any(axis=0)
-                    first = np.where(stops, np.argmax(stop, axis=0), len(g))
-                    ended = np.arange(len(g))[:, None] >= first
+                    ended = np.logical_or.accumulate(hit & (after < 1e-4), axis=0)
                     a = np.where(ended, 0.0, a)
-                    alive &= ~stops
-                    after = np.where(ended, before[np.minimum(first, len(g) - 1), np.arange(len(xs))], after)
+                    alive &= ~ended[-1]
                 c += (a * before).T @ feats[g]
-                t = after[-1]
+                t = t * np.prod(1 - a, axis=0)
             acc[ys, xs] = c
             trans[ys, xs] = t
     bg = np.asarray(background, np.float64).reshape(3)
