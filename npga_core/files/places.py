@@ -78,3 +78,24 @@ def cache_folder_for(path: str | Path, kind: str) -> Path:
     if not is_bundled(folder) and folder_writable(folder):
         return folder
     return user_cache_dir(kind)
+
+
+def process_temp_folder(prefix: str) -> Path:
+    """A new private temp folder named `prefix`-PID-xxxx for this process's working files. Folders of the same
+    prefix left by processes of this user that no longer run (killed before they could remove theirs) are
+    removed first (POSIX, where a pid can be asked whether it runs without touching the process)."""
+    import shutil
+
+    tmp = Path(tempfile.gettempdir())
+    if os.name == "posix":
+        for old in tmp.glob(f"{prefix}-*-*"):
+            try:
+                pid = int(old.name[len(prefix) + 1:].split("-", 1)[0])
+                if old.stat().st_uid != os.getuid() or not old.is_dir() or pid == os.getpid():
+                    continue
+                os.kill(pid, 0)
+            except ProcessLookupError:
+                shutil.rmtree(old, ignore_errors=True)
+            except (ValueError, OSError):
+                continue
+    return Path(tempfile.mkdtemp(prefix=f"{prefix}-{os.getpid()}-"))

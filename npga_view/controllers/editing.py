@@ -12,7 +12,6 @@ from __future__ import annotations
 
 import shutil
 import sys
-import tempfile
 import time
 from pathlib import Path
 
@@ -21,6 +20,7 @@ import numpy as np
 from npga_core.editing.edits import EditSession
 from npga_core.editing.keyframes import KeyframeTimeline
 from npga_core.files.checkpoint import save_avatar
+from npga_core.files.places import process_temp_folder
 from npga_core.model.gaussians import PosedGaussians, rgb_to_sh0
 from npga_view import actions as A
 from npga_view.controllers.edit_actions import EDIT_TABLE, KEYFRAME_TABLE, EditView, apply_edit, apply_keyframe
@@ -68,7 +68,7 @@ class EditController:
         self._drag: list[tuple[float, float]] | None = None
         self._seen = (0, 0)
         self._last_autosave = time.monotonic()
-        self._tmp = Path(tempfile.mkdtemp(prefix="npga-view-edits-"))
+        self._tmp: Path | None = None  # made at the first edit the worker must see
         self._serial = 0
 
     # -- sessions -----------------------------------------------------------------------------------
@@ -232,6 +232,8 @@ class EditController:
         a = self.session.avatar
         if a.dynamics is None:
             return None
+        if self._tmp is None:
+            self._tmp = process_temp_folder("npga-view-edits")
         self._serial += 1
         path = self._tmp / f"edited-{self._serial}.npga"
         save_avatar(a, path)
@@ -260,4 +262,6 @@ class EditController:
                 s.autosave()
             except (OSError, ValueError) as e:
                 print(f"npga-view: autosave failed: {' '.join(str(e).split())}", file=sys.stderr)
-        shutil.rmtree(self._tmp, ignore_errors=True)
+        if self._tmp is not None:
+            shutil.rmtree(self._tmp, ignore_errors=True)
+            self._tmp = None

@@ -32,12 +32,13 @@ ROOT = Path(__file__).resolve().parents[2]
 WAIT_S = 60.0  # bound on waiting for a condition (the worker notices a lost parent within ~0.5 s)
 
 OWNER = """
-import json, sys, time
+import faulthandler, json, signal, sys, time
 import numpy as np
 from npga_core.files.checkpoint import read_avatar
 from npga_core.posing.engine import PoseEngine
 
 def main():
+    faulthandler.register(signal.SIGUSR1, all_threads=True)  # the test's dump when the owner does not end
     a = read_avatar(sys.argv[1])
     eng = PoseEngine(sys.argv[1], len(a), a.cloud.sh.shape[1], a.cloud.latent_dim, threads=1)
     eng.request(a.expression.sample(np.random.default_rng(0)))
@@ -127,6 +128,19 @@ def _wait(cond, timeout: float = WAIT_S) -> bool:
     return cond()
 
 
+def _wait_or_dump(proc: subprocess.Popen) -> None:
+    """Wait for the owner to end; if it does not, fail with its threads' stacks (its SIGUSR1 dump) and stderr."""
+    try:
+        proc.wait(timeout=WAIT_S)
+    except subprocess.TimeoutExpired:
+        os.kill(proc.pid, signal.SIGUSR1)
+        time.sleep(2.0)
+        proc.kill()
+        _, err = proc.communicate(timeout=WAIT_S)
+        raise AssertionError(f"the owner did not end within {WAIT_S:.0f} s of the signal; its stderr and "
+                             f"threads:\n{err[-6000:]}") from None
+
+
 def _read_line(proc: subprocess.Popen, timeout: float = 600.0) -> dict:
     """The JSON line the owner prints once its worker is up (generous: the worker imports torch)."""
     import selectors
@@ -194,7 +208,7 @@ def test_worker_exits_when_its_owner_dies(sig, avatar_file, tmp_path):
         assert worker in tree.pids
         assert any("/psm_" in s for s in _shm_segments(worker))  # the result slots
         os.kill(proc.pid, sig)
-        proc.wait(timeout=WAIT_S)
+        _wait_or_dump(proc)
         tree.assert_nothing_left()
     finally:
         _cleanup(proc, tree)

@@ -7,6 +7,7 @@ import os
 import shutil
 import subprocess
 import sys
+import tempfile
 import textwrap
 import time
 from pathlib import Path
@@ -15,7 +16,14 @@ import pytest
 
 from npga_core.files.atomic import atomic_write
 from npga_core.files.loading import DEMO_AVATAR, DEMO_DIR
-from npga_core.files.places import bundled_root, cache_folder_for, is_bundled, user_cache_dir, user_config_dir
+from npga_core.files.places import (
+    bundled_root,
+    cache_folder_for,
+    is_bundled,
+    process_temp_folder,
+    user_cache_dir,
+    user_config_dir,
+)
 
 ROOT = Path(__file__).resolve().parents[2]
 
@@ -56,7 +64,7 @@ _WINDOWS_LIKE = textwrap.dedent("""
     from npga_core.files.sequences import ExpressionSequence
     from npga_core.model.synthetic import make_synthetic_avatar
 
-    out = Path(tempfile.mkdtemp())
+    out = Path(tempfile.mkdtemp(dir="."))  # (in the test's folder: nothing left in the system's temp)
     avatar = make_synthetic_avatar(200, seed=1)
     save_avatar(avatar, out / "a.npga")
     save_avatar(avatar, out / "a.npga")  # over an existing file
@@ -219,3 +227,20 @@ def test_native_open_dialog_answers_into_an_action(tmp_path):
         else:
             os.environ["DISPLAY"] = old
         stop(proc)
+
+
+@pytest.mark.skipif(os.name != "posix", reason="a pid is asked whether it runs on POSIX only")
+def test_a_killed_viewers_temp_folder_is_removed_by_the_next_one(tmp_path, monkeypatch):
+    monkeypatch.setattr(tempfile, "tempdir", str(tmp_path))
+    gone = subprocess.Popen([sys.executable, "-c", "pass"])
+    gone.wait()  # a pid that no longer runs (reaped)
+    dead = tmp_path / f"npga-view-edits-{gone.pid}-abc"
+    alive = tmp_path / f"npga-view-edits-{os.getppid()}-def"  # the process that started this one runs
+    other = tmp_path / f"npga-view-other-{gone.pid}-ghi"
+    for d in (dead, alive, other):
+        d.mkdir()
+        (d / "edited-1.npga").write_bytes(b"x")
+    mine = process_temp_folder("npga-view-edits")
+    assert mine.parent == tmp_path and mine.name.startswith(f"npga-view-edits-{os.getpid()}-")
+    assert not dead.exists() and alive.exists() and other.exists()
+    assert process_temp_folder("npga-view-edits").exists() and mine.exists()  # a second one keeps this process's

@@ -151,6 +151,7 @@ def shoot(zip_path: Path, weights: dict[str, float], camera: dict[str, list[floa
             proc.wait()
         err = proc.stderr.read().decode(errors="replace") if proc.stderr else ""
         server.close()
+        remove_singleton_folder(profile)
     if not finished:
         raise AssertionError(f"the page sent no frame within {timeout_s:.0f} s; requests {server.requests}; "
                              f"page: {server.log[-8:]}; chromium: {err[-600:]}")
@@ -195,8 +196,19 @@ def start(args: list[str], env: dict | None = None, stdout: int = subprocess.DEV
                             preexec_fn=_session_dying_with_parent)
 
 
+def remove_singleton_folder(profile: Path) -> None:
+    """Remove the folder a stopped chromium with user data in `profile` made in the system's temp folder for its
+    singleton socket (the profile's SingletonSocket links into it; a browser ended by a signal leaves it)."""
+    link = Path(profile) / "SingletonSocket"
+    if link.is_symlink():
+        folder = Path(os.readlink(link)).parent
+        if folder.name.startswith("org.chromium.Chromium."):
+            shutil.rmtree(folder, ignore_errors=True)
+
+
 def stop(proc: subprocess.Popen) -> str:
-    """End a child started by `start` (its own process group, nothing else); its stderr."""
+    """End a child started by `start` (its own process group, nothing else); its stderr. A browser's
+    singleton folder is removed (`remove_singleton_folder`)."""
     if proc.poll() is None:
         os.killpg(proc.pid, signal.SIGTERM)
         try:
@@ -204,6 +216,10 @@ def stop(proc: subprocess.Popen) -> str:
         except subprocess.TimeoutExpired:
             os.killpg(proc.pid, signal.SIGKILL)
             proc.wait()
+    args = proc.args if isinstance(proc.args, list) else []
+    profile = next((str(a).split("=", 1)[1] for a in args if str(a).startswith("--user-data-dir=")), None)
+    if profile is not None:
+        remove_singleton_folder(Path(profile))
     return proc.stderr.read().decode(errors="replace") if proc.stderr else ""
 
 
