@@ -3,8 +3,9 @@ and its content version), and the events the window's parts subscribe to when it
 
 What happens when an avatar opens is decided here once: the old worker stops, a new one starts for an animatable
 avatar, the cloud on screen is forgotten, then `AvatarOpened` goes to every subscriber in the order they were
-included; an edit of the canonical cloud (`change_cloud`) restarts the worker and sends `CloudChanged`; opening or
-closing a sequence sends `SequenceChanged`. A part subscribes with a typed table, as its action handlers are
+included; an edit of the canonical cloud (`change_cloud`) has the running worker open the edited copy (a new worker
+only where the cloud outgrew its slots) and sends `CloudChanged`; opening or closing a sequence sends
+`SequenceChanged`. A part subscribes with a typed table, as its action handlers are
 registered (npga_view/dispatch.py)::
 
     def subscriptions(self) -> Subscriptions:
@@ -44,7 +45,7 @@ class AvatarOpened(Event):
 
 @dataclass(frozen=True)
 class CloudChanged(Event):
-    """The open avatar's canonical cloud was edited (its worker, if any, restarted on the edited copy)."""
+    """The open avatar's canonical cloud was edited (its worker, if any, now on the edited copy)."""
 
     avatar: Avatar
 
@@ -117,12 +118,16 @@ class Document(Subscriptions):
         self.emit(AvatarOpened(avatar))
 
     def change_cloud(self, worker_path: str | None) -> None:
-        """The canonical cloud was edited: a new worker on `worker_path` (the edited copy; None for a static
-        avatar), then `CloudChanged`."""
-        assert self.avatar is not None
-        if worker_path is not None:
+        """The canonical cloud was edited: the worker opens `worker_path` (the edited copy; None for a static
+        avatar) in place, or a new worker starts on it where the posed cloud outgrew the old one's slots; then
+        `CloudChanged`."""
+        a = self.avatar
+        assert a is not None
+        if worker_path is not None and not (
+                self.engine is not None
+                and self.engine.reopen(worker_path, len(a), a.cloud.sh.shape[1], a.cloud.latent_dim)):
             self._start_engine(worker_path)
-        self.emit(CloudChanged(self.avatar))
+        self.emit(CloudChanged(a))
 
     def set_sequence(self, sequence: ExpressionSequence | None) -> None:
         """Open `sequence` (None: close it), then `SequenceChanged`."""

@@ -3,7 +3,7 @@
 arrive faster than images cost no upload each) and handed to the level-of-detail merge (`LiveDetail.submit`).
 
 It subscribes to the document: a new avatar (or an edited cloud) gets a new inspector and a new level-of-detail
-grouping, and an edited static avatar is posed again here (an animatable one by its restarted worker).
+grouping, and an edited static avatar is posed again here (an animatable one by its worker).
 """
 
 from __future__ import annotations
@@ -59,7 +59,7 @@ class ShownCloud:
         picked = self.state.inspect.picked
         if picked is not None and picked >= len(e.avatar):
             self.state.inspect.picked = None
-        if self.doc.engine is None:  # (an animatable avatar's restarted worker poses it)
+        if self.doc.engine is None:  # (an animatable avatar's worker poses it)
             self.show(e.avatar.pose())
 
     # --------------------------------------------------------------------------------------------- showing

@@ -17,6 +17,9 @@ What the worker does, most urgent first:
 3. baking a sequence (`bake`), one stored frame per step, also abandoned and resumed around requests;
 4. fitting the preview model (once per avatar content; cached next to the avatar).
 
+An edited cloud is opened by the running worker (`reopen`: ~50 ms for the demo instead of a new process's
+~3-4 s of start); requests before it are dropped, as is the bake.
+
 Every result says what it is: `PoseResult.preview` (an approximation: a preview, whose exact pose follows, or
 a baked frame interpolated between stored ones), `.frame` and `.baked` for baked frames. Timings (ms):
 "pose_total"; for exact poses "F", "G", "apply" (busy time per thread); for previews "probes" and
@@ -54,6 +57,7 @@ from npga_core.posing.messages import (  # noqa: F401  (EngineOptions, BakeStatu
     PoseReply,
     PoseRequest,
     ReadyReply,
+    ReopenRequest,
     StatusReply,
     peak_rss_mb,
 )
@@ -105,6 +109,7 @@ class PoseEngine:
         self.status: dict = {}
         self.bake_status: BakeStatus | None = None
         self._bake_id = 0  # number of the newest bake or cancel request
+        self._reopened = 0  # id of the newest `reopen`: answers to requests before it are dropped
         self.worker_peak_rss_mb = 0.0
         self._proc = ctx.Process(target=worker_main, daemon=True, name="npga-pose-worker",
                                  args=(path, self.layout, [s.name for s in self._shms], self._slots, self._req,
@@ -151,6 +156,22 @@ class PoseEngine:
         self._bake_id += 1
         self._req.put(BakeRequest(self._bake_id, codes.copy(), float(budget_mb), bool(cache), int(bits)))
 
+    def reopen(self, path: str, n: int, sh_coeffs: int, latent_dim: int) -> bool:
+        """Have the running worker open `path` instead (an edited cloud of `n` Gaussians): no new process, the
+        next poses are of the new file, earlier requests and the bake are dropped. False (nothing sent) when the
+        worker is gone or the posed cloud would not fit the slots (then start a new engine)."""
+        layout = Layout(n, sh_coeffs, latent_dim)
+        if not self._proc.is_alive() or not self._views or layout.floats * 4 > min(s.size for s in self._shms):
+            return False
+        self._next_id += 1
+        self._reopened = self._next_id
+        self.layout = layout
+        self._views = [layout.views(s.buf) for s in self._shms]
+        self.pending, self.refining, self.ready = None, False, False
+        self.bake_status = None
+        self._req.put(ReopenRequest(self._reopened, str(path), layout))
+        return True
+
     def cancel_bake(self) -> None:
         self._bake_id += 1
         self._req.put(CancelBakeRequest(self._bake_id))
@@ -166,13 +187,20 @@ class PoseEngine:
             except queue.Empty:
                 break
             if isinstance(msg, ReadyReply | StatusReply):
+                if msg.status.get("reopened", 0) < self._reopened:
+                    continue  # the worker's state before the newest reopen
                 self.ready = True
+                if isinstance(msg, ReadyReply):
+                    self.status = {}  # (a reopened worker starts its status afresh)
                 self.status.update(msg.status)
                 bake = msg.status.get("bake", ...)
                 # every status carries the worker's bake: take it only once the worker has seen the newest
                 # bake or cancel request (an older status would bring back the previous bake)
                 if bake is not ... and msg.status.get("bake_id", 0) == self._bake_id:
                     self.bake_status = None if bake is None else BakeStatus(**bake)
+            elif isinstance(msg, ErrorReply | PoseReply) and 0 < msg.req_id < self._reopened:
+                if isinstance(msg, PoseReply):
+                    self._release(msg.slot)  # a pose of the file before the newest reopen
             elif isinstance(msg, ErrorReply):
                 self.last_error = msg.message
                 if msg.req_id == self.pending:

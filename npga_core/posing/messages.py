@@ -117,12 +117,21 @@ class CancelBakeRequest(NamedTuple):
     bake_id: int
 
 
-Request = PoseRequest | FrameRequest | BakeRequest | CancelBakeRequest
+class ReopenRequest(NamedTuple):
+    """Open another file of the avatar (an edited cloud) in the running worker: requests before `req_id` are
+    dropped, the posed clouds take `layout` (no larger than the slots)."""
+
+    req_id: int
+    path: str
+    layout: Layout
+
+
+Request = PoseRequest | FrameRequest | BakeRequest | CancelBakeRequest | ReopenRequest
 
 
 # -- replies ----------------------------------------------------------------------------------------------
 class ReadyReply(NamedTuple):
-    status: dict
+    status: dict  # "reopened": the id of the `ReopenRequest` it answers (absent: the worker's start)
 
 
 class StatusReply(NamedTuple):

@@ -32,6 +32,7 @@ from npga_core.posing.messages import (
     PoseReply,
     PoseRequest,
     ReadyReply,
+    ReopenRequest,
     StatusReply,
     peak_rss_mb,
 )
@@ -78,29 +79,41 @@ class _Worker:
     def __init__(self, path: str, layout: Layout, bufs: list, slot_state: MutableSequence[int], req_q: Queue[Any],
                  res_q: Queue[Any], threads: int,
                  options: EngineOptions):
+        self.opts, self.threads, self.bufs = options, max(1, threads), bufs
+        self.slot_state, self.req_q, self.res_q = slot_state, req_q, res_q
+        self.status: dict = {}
+        self._open(path, layout)
+
+    def _open(self, path: str, layout: Layout) -> None:
+        """Open the avatar at `path` with posed clouds of `layout` in the slots; everything of the avatar before
+        (pending requests, refinement, bake, preview model and its fit) is dropped."""
         import torch
 
         from npga_core.files.loading import load_avatar
         from npga_core.posing.device import resolve_device
         from npga_core.posing.fastpose import FastPoser
 
-        self.path, self.opts = path, options
-        self.slot_state, self.req_q, self.res_q = slot_state, req_q, res_q
-        self.views = [layout.views(b) for b in bufs]
-        self.avatar = load_avatar(path)
-        self.key = self.avatar.content_key()
-        self.poser: FastPoser | None = None
-        self.can_preview = False
+        options, threads = self.opts, self.threads
+        self.path = path
+        self.views = [layout.views(b) for b in self.bufs]
+        self.poser: FastPoser | None = None  # (the last avatar's poser and tensors freed before the next loads)
         self.previewer: Previewer | None = None
         self.fit: PreviewFit | None = None
         self.job: _BakeJob | None = None
+        for name in ("base", "scratch", "avatar"):
+            self.__dict__.pop(name, None)
+        self.can_preview = False
         self.exact_ms: float | None = None
         self.preview_ms: float | None = None
         self.want: PoseRequest | FrameRequest | None = None  # the newest pose or frame request, not answered yet
         self.refine: PoseRequest | None = None  # the preview answered last, whose exact pose is still to come
         self._refine_at = 0.0  # when the refinement of the last preview may start (refine_delay_ms)
-        self.status: dict = {}
-        threads = max(1, threads)
+        # a reopened worker's status: the bake it had is gone (said for the newest bake request it saw)
+        self.status = {k: self.status[k] for k in ("bake_id", "reopened") if k in self.status}
+        if "bake_id" in self.status:
+            self.status["bake"] = None
+        self.avatar = load_avatar(path)
+        self.key = self.avatar.content_key()
         if not FastPoser.supported(self.avatar):
             torch.set_num_threads(threads)  # the generic path parallelises inside each operation
         else:
@@ -132,6 +145,10 @@ class _Worker:
         if isinstance(msg, PoseRequest | FrameRequest):
             self.want = msg
             self.refine = None
+        elif isinstance(msg, ReopenRequest):
+            self._open(msg.path, msg.layout)
+            self.status["reopened"] = msg.req_id
+            self.res_q.put(ReadyReply(dict(self.status)))
         elif isinstance(msg, BakeRequest):
             self.status["bake_id"] = msg.bake_id
             self._start_bake(msg.codes, msg.budget_mb, msg.use_cache, msg.bits)

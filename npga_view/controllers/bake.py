@@ -2,7 +2,7 @@
 
 The worker bakes (`PoseEngine.bake`: progress, memory budget, cache file next to the avatar); this decides
 whether the timeline plays from the bake. A bake is used only while it is of the codes on the timeline: a
-change of sequence or smoothing makes it stale, and an edit (which restarts the worker) drops it. Until then
+change of sequence or smoothing makes it stale, and an edit (the worker reopens the edited cloud) drops it. Until then
 playback stays live (exact poses following the clock); frames not baked yet are posed exactly on request.
 """
 
@@ -19,7 +19,7 @@ from npga_view.state import ViewerState
 class BakeController:
     """Start, cancel and judge the bake of the open sequence; see the module docstring.
 
-    Handed in: the viewer state, the current pose engine (a getter: the worker is restarted by edits) and the
+    Handed in: the viewer state, the current pose engine (a getter: another avatar brings another) and the
     timeline's (smoothed) codes, whose key says what they are of (None without a sequence).
     """
 
@@ -47,7 +47,7 @@ class BakeController:
         self._state.timeline.baked = False
 
     def subscriptions(self) -> Subscriptions:
-        """A new worker (another avatar, an edit) has no bake: forget it."""
+        """Another avatar or an edited cloud has no bake: forget it."""
         s = Subscriptions()
         s.subscribe(AvatarOpened, self._forget)
         s.subscribe(CloudChanged, self._forget)

@@ -4,8 +4,8 @@ keeps the pose worker in step with the edited cloud (the document's `change_clou
 edit session (it subscribes to `AvatarOpened`).
 
 The pose worker opens the avatar from a file, so after an edit that changes the cloud the controller writes
-the edited avatar to a private temp file (35 ms for the demo) and starts a worker on it; the replaced worker stops
-in the background (the frame of a Delete on the demo: ~1 s -> 0.27 s), the new one poses after its start (~4 s).
+the edited avatar to a private temp file (35 ms for the demo) and the running worker opens it (`PoseEngine.reopen`;
+a new worker only where the edited cloud outgrew the old one's slots, the old one stopping in the background).
 """
 
 from __future__ import annotations

@@ -75,7 +75,7 @@ class PoseController:
             self.host.screen.show(e.avatar.cloud.posed_static())
 
     def _cloud_changed(self, e: CloudChanged) -> None:
-        """A new worker (on the edited cloud): ask it for the current code again."""
+        """The worker is on the edited cloud now: ask it for the current code again."""
         self.requested = None
         self._frame_of_request = {}
 

@@ -128,3 +128,45 @@ def test_a_worker_replaced_while_it_starts_stops_cleanly(small_npga, capfd):
     assert "Traceback" not in err, err[-2000:]
     for proc, names in procs:  # (stopped when asked, or killed 5 s after: three starting at once on a busy machine)
         assert not proc.is_alive() and proc.exitcode in (0, -9) and not any(_shm_exists(n) for n in names)
+
+
+@pytest.mark.slow
+def test_an_edited_cloud_is_reopened_in_the_running_worker(small_npga, tmp_path):
+    from npga_core.editing.commands import DeleteSelected
+    from npga_core.editing.edits import EditSession
+    from npga_core.files.checkpoint import save_avatar
+
+    a, eng = _engine(small_npga)
+    k, h, n0 = a.cloud.sh.shape[1], a.cloud.latent_dim, len(a)
+    with eng:
+        z = a.expression.sample(np.random.default_rng(3))
+        before = a.pose(z)  # (the session edits `a` itself)
+        eng.request(z)
+        eng.wait(exact=True).release()
+        pid = eng.pid
+        eng.bake(np.stack([z, -z]))
+        s = EditSession(a)
+        s.select(np.arange(len(a)) % 3 == 0)
+        s.run(DeleteSelected())
+        save_avatar(s.avatar, tmp_path / "deleted.npga")
+        old = eng.request(0.5 * z)  # before the reopen: dropped, never answered with the old file's rows
+        assert eng.reopen(str(tmp_path / "deleted.npga"), len(s.avatar), k, h)
+        assert eng.bake_status is None and eng.pending is None
+        new = eng.request(z)
+        r = eng.wait(exact=True)
+        assert r is not None and r.request_id == new > old and eng.pid == pid and eng.status["reopened"] > 0
+        ref = s.avatar.pose(z)
+        assert len(r.posed) == len(ref) < n0
+        np.testing.assert_allclose(r.posed.means, ref.means, rtol=1e-5, atol=1e-7)
+        np.testing.assert_allclose(r.posed.sh, ref.sh, rtol=1e-5, atol=1e-6)
+        r.release()
+        s.undo()  # back to every row: still fits the slots
+        save_avatar(s.avatar, tmp_path / "undone.npga")
+        assert eng.reopen(str(tmp_path / "undone.npga"), len(s.avatar), k, h)
+        eng.request(z)
+        r = eng.wait(exact=True)
+        assert len(r.posed) == n0
+        np.testing.assert_allclose(r.posed.means, before.means, rtol=1e-5, atol=1e-7)
+        r.release()
+        assert not eng.reopen(str(tmp_path / "undone.npga"), n0 + 1, k, h)  # outgrows the slots: a new engine
+        assert eng.pid == pid and eng.alive
