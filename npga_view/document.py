@@ -45,9 +45,12 @@ class AvatarOpened(Event):
 
 @dataclass(frozen=True)
 class CloudChanged(Event):
-    """The open avatar's canonical cloud was edited (its worker, if any, now on the edited copy)."""
+    """The open avatar's canonical cloud was edited (its worker, if any, now on the edited copy). `kept`: a mask
+    over the cloud before of the rows the edited cloud consists of, unchanged (a deletion; None otherwise): their
+    last pose is the pose of the edited cloud, since every Gaussian's dynamics are its own."""
 
     avatar: Avatar
+    kept: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -117,17 +120,17 @@ class Document(Subscriptions):
             self._start_engine(avatar.source)
         self.emit(AvatarOpened(avatar))
 
-    def change_cloud(self, worker_path: str | None) -> None:
+    def change_cloud(self, worker_path: str | None, kept: np.ndarray | None = None) -> None:
         """The canonical cloud was edited: the worker opens `worker_path` (the edited copy; None for a static
         avatar) in place, or a new worker starts on it where the posed cloud outgrew the old one's slots; then
-        `CloudChanged`."""
+        `CloudChanged` (with `kept`: the rows of the cloud before that the edited one keeps unchanged, a deletion)."""
         a = self.avatar
         assert a is not None
         if worker_path is not None and not (
                 self.engine is not None
                 and self.engine.reopen(worker_path, len(a), a.cloud.sh.shape[1], a.cloud.latent_dim)):
             self._start_engine(worker_path)
-        self.emit(CloudChanged(a))
+        self.emit(CloudChanged(a, kept))
 
     def set_sequence(self, sequence: ExpressionSequence | None) -> None:
         """Open `sequence` (None: close it), then `SequenceChanged`."""

@@ -59,8 +59,11 @@ class ShownCloud:
         picked = self.state.inspect.picked
         if picked is not None and picked >= len(e.avatar):
             self.state.inspect.picked = None
+        posed = self.doc.posed
         if self.doc.engine is None:  # (an animatable avatar's worker poses it)
             self.show(e.avatar.pose())
+        elif e.kept is not None and posed is not None and len(posed) == len(e.kept):
+            self.show(posed.subset(e.kept), self.doc.code)  # a deletion seen at once, before the worker's pose
 
     # --------------------------------------------------------------------------------------------- showing
     def show(self, posed: PosedGaussians, code: np.ndarray | None = None) -> None:

@@ -71,6 +71,11 @@ class Command(ABC):
     @abstractmethod
     def undo(self, s: Session) -> None: ...
 
+    def kept_rows(self) -> np.ndarray | None:
+        """After `do`: a mask over the cloud before it of the rows the cloud after it consists of, unchanged, in
+        order (a deletion); None where rows are added or any attribute changes."""
+        return None
+
 
 class SetSelection(Command):
     """Replace the selection mask (the selection tools build the new mask)."""
@@ -247,6 +252,7 @@ class DeleteRows(Command):
 
     def __init__(self) -> None:
         self.index: np.ndarray | None = None  # removed rows of the cloud before the deletion, sorted
+        self._n = 0  # rows before the deletion
         self._rows: dict[str, np.ndarray] | None = None
         self._masks: tuple[np.ndarray, np.ndarray] | None = None  # selection, hidden before
 
@@ -260,6 +266,7 @@ class DeleteRows(Command):
             self.name = self.label(len(self.index))
         if len(self.index) == 0:
             raise NothingSelectedError("there is nothing to delete")
+        self._n = len(cloud)
         keep = np.ones(len(cloud), bool)
         keep[self.index] = False
         self._rows = {k: np.array(v[self.index]) for k, v in cloud.arrays().items()}
@@ -287,6 +294,13 @@ class DeleteRows(Command):
         s.set_cloud(replace(cur, **restored))
         s.selection, s.hidden = masks
         self._rows = self._masks = None
+
+    def kept_rows(self) -> np.ndarray | None:
+        if self.index is None:
+            return None
+        keep = np.ones(self._n, bool)
+        keep[self.index] = False
+        return keep
 
     def label(self, count: int) -> str:
         return f"Delete {count:,}"

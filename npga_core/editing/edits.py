@@ -115,6 +115,8 @@ class EditSession:
         self.preview: np.ndarray | None = None  # e.g. the floaters that would go
         self.version = 0
         self.mask_version = 0
+        # (version before, mask): the last cloud change kept these rows of the cloud at that version, unchanged
+        self.kept_rows: tuple[int, np.ndarray] | None = None
         self._saved_serial = 0
         self._owned: set[str] = set()
         self._nbrs: tuple[np.ndarray, int, np.ndarray] | None = None  # (means it was built on, k, graph)
@@ -167,7 +169,7 @@ class EditSession:
     def run(self, cmd: Command) -> Command:
         """Do `cmd` and put it on the undo stack."""
         self.history.push(cmd, self)
-        self._changed(cmd)
+        self._changed(cmd, cmd.kept_rows())
         return cmd
 
     def undo(self) -> Command | None:
@@ -181,14 +183,15 @@ class EditSession:
         """Do the newest undone command again."""
         cmd = self.history.redo(self)
         if cmd is not None:
-            self._changed(cmd)
+            self._changed(cmd, cmd.kept_rows())
         return cmd
 
-    def _changed(self, cmd: Command) -> None:
+    def _changed(self, cmd: Command, kept: np.ndarray | None = None) -> None:
         self.preview = None
         self.mask_version += 1
         if cmd.changes_cloud:
             self.avatar.invalidate_caches()
+            self.kept_rows = None if kept is None else (self.version, kept)
             self.version += 1
 
     # -- selection ----------------------------------------------------------------------------------

@@ -220,8 +220,9 @@ class EditController:
             return
         version, masks = s.version, s.mask_version
         if version != self._seen[0]:
+            kept = s.kept_rows[1] if s.kept_rows is not None and s.kept_rows[0] == self._seen[0] else None
             self._seen = (version, masks)
-            self.app.doc.change_cloud(self._write_for_worker())
+            self.app.doc.change_cloud(self._write_for_worker(), kept)
         elif masks != self._seen[1]:
             self._seen = (version, masks)
             self.app.screen.reupload()

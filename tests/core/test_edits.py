@@ -513,3 +513,23 @@ def test_apply_covers_the_panel_actions(tmp_path):
     assert len(load_avatar(tmp_path / "e.npga")) == len(s) and (tmp_path / "e.ply").is_file()
     with pytest.raises(ValueError, match="camera"):
         apply_edit(s, A.SelectRect((0, 0, 1, 1)))
+
+
+def test_a_deletion_says_which_rows_it_kept_and_their_pose_is_the_edited_clouds():
+    s = EditSession(small())
+    z = s.avatar.expression.sample(np.random.default_rng(4))
+    before = s.avatar.pose(z)
+    s.select(np.arange(len(s)) % 4 == 1)
+    s.run(DeleteSelected())
+    version_before, kept = s.kept_rows
+    assert version_before == s.version - 1 and kept.shape == (300,) and kept.sum() == len(s) == 225
+    after = s.avatar.pose(z)  # every Gaussian's dynamics are its own: the kept rows' pose is unchanged
+    for name in ("means", "quats", "scales", "opacities", "sh"):
+        np.testing.assert_allclose(getattr(after, name), getattr(before, name)[kept], rtol=1e-5, atol=1e-6)
+    s.undo()
+    assert s.kept_rows is None  # rows came back: they must be posed
+    s.redo()
+    assert s.kept_rows is not None and np.array_equal(s.kept_rows[1], kept)
+    s.select_all()
+    s.run(ScaleOpacity(0.5))
+    assert s.kept_rows is None  # an attribute changed

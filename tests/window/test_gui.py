@@ -369,9 +369,15 @@ def test_ctrl_drag_selects_delete_and_undo(app, avatar_path):
     highlighted = app.read_window(viewport_only=True)
     centre = highlighted[int(cy) - 20 : int(cy) + 20, int(cx - x) - 20 : int(cx - x) + 20].astype(int)
     assert (centre[..., 0] - centre[..., 2]).mean() > 40, "selected Gaussians should turn orange"
+    posed, kept = app.doc.posed, ~app.edits.session.selection
     _key(app, imgui.Key.delete)
     assert len(app.avatar) == n - selected and app.edits.session.dirty
+    # the kept rows of the last pose are on screen at once (every Gaussian's dynamics are its own), before the
+    # worker, which has reopened the edited cloud, poses it
+    assert len(app.doc.posed) == n - selected
+    np.testing.assert_array_equal(app.doc.posed.means, posed.means[kept])
     settle(app)
+    np.testing.assert_allclose(app.doc.posed.means, posed.means[kept], atol=1e-5)  # the worker's pose agrees
     holed = app.read_window(viewport_only=True)
     assert np.abs(holed.astype(int) - before.astype(int)).max(axis=2).mean() > 1
     _key(app, imgui.Key.z, ctrl=True)
