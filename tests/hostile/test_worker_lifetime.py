@@ -39,11 +39,17 @@ from npga_core.posing.engine import PoseEngine
 
 def main():
     faulthandler.register(signal.SIGUSR1, all_threads=True)  # the test's dump when the owner does not end
+    # SIGINT as a program started from a terminal has it: twice in the full suite (xdist) the owner inherited it
+    # ignored or blocked from the test process and slept on through the signal (its stack, dumped)
+    inherited = {"sigint": str(signal.getsignal(signal.SIGINT)),
+                 "blocked": sorted(int(s) for s in signal.pthread_sigmask(signal.SIG_BLOCK, []))}
+    signal.signal(signal.SIGINT, signal.default_int_handler)
+    signal.pthread_sigmask(signal.SIG_UNBLOCK, [signal.SIGINT, signal.SIGTERM])
     a = read_avatar(sys.argv[1])
     eng = PoseEngine(sys.argv[1], len(a), a.cloud.sh.shape[1], a.cloud.latent_dim, threads=1)
     eng.request(a.expression.sample(np.random.default_rng(0)))
     assert eng.wait(300) is not None, eng.last_error
-    print(json.dumps({"worker": eng.pid}), flush=True)
+    print(json.dumps({"worker": eng.pid, "inherited": inherited}), flush=True)
     while True:
         time.sleep(1)
 
@@ -128,7 +134,7 @@ def _wait(cond, timeout: float = WAIT_S) -> bool:
     return cond()
 
 
-def _wait_or_dump(proc: subprocess.Popen) -> None:
+def _wait_or_dump(proc: subprocess.Popen, note: str = "") -> None:
     """Wait for the owner to end; if it does not, fail with its threads' stacks (its SIGUSR1 dump) and stderr."""
     try:
         proc.wait(timeout=WAIT_S)
@@ -137,7 +143,7 @@ def _wait_or_dump(proc: subprocess.Popen) -> None:
         time.sleep(2.0)
         proc.kill()
         _, err = proc.communicate(timeout=WAIT_S)
-        raise AssertionError(f"the owner did not end within {WAIT_S:.0f} s of the signal; its stderr and "
+        raise AssertionError(f"the owner did not end within {WAIT_S:.0f} s of the signal ({note}); its stderr and "
                              f"threads:\n{err[-6000:]}") from None
 
 
@@ -203,12 +209,13 @@ def test_worker_exits_when_its_owner_dies(sig, avatar_file, tmp_path):
                             stderr=subprocess.PIPE, text=True, env=_env(tmp_path))
     tree = None
     try:
-        worker = _read_line(proc)["worker"]
+        line = _read_line(proc)
+        worker = line["worker"]
         tree = _Tree(proc.pid)
         assert worker in tree.pids
         assert any("/psm_" in s for s in _shm_segments(worker))  # the result slots
         os.kill(proc.pid, sig)
-        _wait_or_dump(proc)
+        _wait_or_dump(proc, f"inherited from the test process: {line['inherited']}")
         tree.assert_nothing_left()
     finally:
         _cleanup(proc, tree)
