@@ -75,9 +75,11 @@ class PoseController:
             self.host.screen.show(e.avatar.cloud.posed_static())
 
     def _cloud_changed(self, e: CloudChanged) -> None:
-        """The worker is on the edited cloud now: ask it for the current code again."""
+        """The worker is on the edited cloud now: ask it for the current code again. A deletion's kept rows are on
+        screen meanwhile (`ShownCloud`): drawn as a pose about to be replaced (live images) until the worker's."""
         self.requested = None
         self._frame_of_request = {}
+        self.preview = self.preview or (e.kept is not None and self.host.doc.engine is not None)
 
     def _sequence_changed(self, e: SequenceChanged) -> None:
         seq = e.sequence
