@@ -252,7 +252,7 @@ class DeleteRows(Command):
 
     def __init__(self) -> None:
         self.index: np.ndarray | None = None  # removed rows of the cloud before the deletion, sorted
-        self._n = 0  # rows before the deletion
+        self._kept: np.ndarray | None = None  # mask of the rows kept, over the cloud before the deletion
         self._rows: dict[str, np.ndarray] | None = None
         self._masks: tuple[np.ndarray, np.ndarray] | None = None  # selection, hidden before
 
@@ -266,9 +266,9 @@ class DeleteRows(Command):
             self.name = self.label(len(self.index))
         if len(self.index) == 0:
             raise NothingSelectedError("there is nothing to delete")
-        self._n = len(cloud)
         keep = np.ones(len(cloud), bool)
         keep[self.index] = False
+        self._kept = keep
         self._rows = {k: np.array(v[self.index]) for k, v in cloud.arrays().items()}
         self._masks = (s.selection, s.hidden)
         s.set_cloud(cloud.subset(keep))
@@ -276,12 +276,10 @@ class DeleteRows(Command):
         s.hidden = self._masks[1][keep]
 
     def undo(self, s: Session) -> None:
-        index, rows, masks = self.index, self._rows, self._masks
-        assert index is not None and rows is not None and masks is not None  # undo follows do
+        index, rows, masks, keep = self.index, self._rows, self._masks, self._kept
+        assert index is not None and rows is not None and masks is not None and keep is not None  # undo follows do
         cur = s.avatar.cloud
-        n = len(cur) + len(index)
-        keep = np.ones(n, bool)
-        keep[index] = False
+        n = len(keep)
         restored: dict[str, Any] = {}
         for name in PER_GAUSSIAN_FIELDS:
             a = getattr(cur, name)
@@ -296,11 +294,7 @@ class DeleteRows(Command):
         self._rows = self._masks = None
 
     def kept_rows(self) -> np.ndarray | None:
-        if self.index is None:
-            return None
-        keep = np.ones(self._n, bool)
-        keep[self.index] = False
-        return keep
+        return self._kept
 
     def label(self, count: int) -> str:
         return f"Delete {count:,}"

@@ -15,6 +15,7 @@ from __future__ import annotations
 import functools
 import importlib.resources
 import os
+import shutil
 import tempfile
 from pathlib import Path
 from typing import cast
@@ -84,8 +85,6 @@ def process_temp_folder(prefix: str) -> Path:
     """A new private temp folder named `prefix`-PID-xxxx for this process's working files. Folders of the same
     prefix left by processes of this user that no longer run (killed before they could remove theirs) are
     removed first (POSIX, where a pid can be asked whether it runs without touching the process)."""
-    import shutil
-
     tmp = Path(tempfile.gettempdir())
     if os.name == "posix":
         for old in tmp.glob(f"{prefix}-*-*"):

@@ -17,7 +17,7 @@ What the worker does, most urgent first:
 3. baking a sequence (`bake`), one stored frame per step, also abandoned and resumed around requests;
 4. fitting the preview model (once per avatar content; cached next to the avatar).
 
-An edited cloud is opened by the running worker (`reopen`: ~50 ms for the demo instead of a new process's
+An edited cloud is opened by the running worker (`reopen`: ~0.25 s for the demo instead of a new process's
 ~3-4 s of start); requests before it are dropped, as is the bake.
 
 Every result says what it is: `PoseResult.preview` (an approximation: a preview, whose exact pose follows, or
