@@ -8,6 +8,7 @@ the loop may wait for input (its clock, `FramePacing`, is `pacing`).
 
 from __future__ import annotations
 
+import time
 from collections.abc import Callable
 
 import moderngl
@@ -23,6 +24,7 @@ from npga_view.document import Document
 from npga_view.imgui_glfw import imgui
 from npga_view.pacing import FramePacing
 from npga_view.rendering.live_detail import LiveDetail
+from npga_view.rendering.renderer import camera_key
 from npga_view.rendering.scheduler import DrawScheduler
 from npga_view.shown_cloud import ShownCloud
 from npga_view.state import ViewerState
@@ -42,19 +44,35 @@ class ViewFrame:
         self.screen, self.poses, self.refining, self.compare = screen, poses, refining, compare
         self.live, self.edits, self.camera, self.viewport = live, edits, camera, viewport
         self.pacing = FramePacing()
+        self._shown_view: tuple | None = None  # camera and content version of the last frame
+        self._changed_t = -1e9  # when they last changed
+
+    def _held(self) -> bool:
+        """A drag in the view or a held widget."""
+        io = imgui.get_io()
+        dragging = not io.want_capture_mouse and any(imgui.is_mouse_down(b) for b in range(3))
+        return dragging or imgui.is_any_item_active()
+
+    def _playing(self) -> bool:
+        """Playback of a sequence or of keyframes."""
+        playing = self.doc.sequence is not None and self.state.follow_sequence and self.state.timeline.playing
+        return playing or self.edits.kf_playing
 
     def input_active(self) -> bool:
         """A drag or a held widget, or playback (of a sequence or of keyframes)."""
-        io = imgui.get_io()
-        dragging = not io.want_capture_mouse and any(imgui.is_mouse_down(b) for b in range(3))
-        playing = self.doc.sequence is not None and self.state.follow_sequence and self.state.timeline.playing
-        return dragging or imgui.is_any_item_active() or playing or self.edits.kf_playing
+        return self._held() or self._playing()
 
     def interacting(self) -> bool:
-        """The view is changing now: a drag or slider, playback, a Live Link stream (packets within the last
-        half second: each one replaces the pose), or a pose that will be replaced (a preview or the canonical cloud
-        before the first pose). Draws at the live scale meanwhile."""
-        return self.input_active() or self.live.busy() or self.poses.preview or self.poses.canonical
+        """The view is changing now: a drag or slider that moved the view or its content within the scheduler's
+        settle time (held still longer, the view is refined as if let go), playback, a Live Link stream (packets
+        within the last half second: each one replaces the pose), or a pose that will be replaced (a preview or the
+        canonical cloud before the first pose). Draws at the live scale meanwhile."""
+        now = time.perf_counter()
+        shown = (camera_key(self.camera()), self.doc.version)
+        if shown != self._shown_view:
+            self._shown_view, self._changed_t = shown, now
+        moving = self._held() and now - self._changed_t < self.draws.settle_s
+        return (moving or self._playing() or self.live.busy() or self.poses.preview or self.poses.canonical)
 
     def schedule(self, framebuffer: moderngl.Framebuffer) -> View:
         """This frame's splat drawing (`DrawScheduler`), the refinement or the comparison; returns what the view

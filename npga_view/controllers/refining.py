@@ -42,6 +42,7 @@ class RefineController:
         self._latent_for: tuple | None = None  # what the latent image being drawn in slices is for
         self._latent: np.ndarray | None = None  # that latent image once finished
         self._view: ViewImage | None = None  # the refined image of the view on its way (the one pipeline)
+        self._images = -1  # the scheduler's finished images when this controller last looked (`update`)
 
     def set_avatar(self, avatar: Avatar | None) -> None:
         """A new avatar (or an edited one): take its CNN and latent statistics."""
@@ -91,10 +92,13 @@ class RefineController:
         if not self.draws.settled:  # the view changed: a refinement still running is of a view left behind
             self.refiner.cancel()
             self._drop_latent()
+        # a splat image finished in this frame is shown in it: its refinement starts in the next frame (read-back,
+        # latent pass and CNN input took 75-100 ms on llvmpipe, which delayed the full-resolution image by as much)
+        fresh, self._images = self._images != self.draws.images, self.draws.images
         if not self.draws.settled or self.draws.interacting:  # (or a change is on its way: its image first)
             ready = key == self._key  # no new splat image yet: the refined one of the image on screen stays
         else:
-            ready = key == self._key or self._compute(key, what, camera, bg)
+            ready = key == self._key or (not fresh and self._compute(key, what, camera, bg))
         if not ready:
             self._set_shown("splats (refining)")
             return False
@@ -152,7 +156,8 @@ class RefineController:
                 if view is None or view.key != key or (view.stage == "cnn" and refiner.pending_key() != key):
                     self._drop_latent()  # a new view (or its CNN job was cancelled): from the splat image on screen
                     rgb = self.renderer.front_image(bg)
-                    view = self._view = ViewImage(self.renderer, camera, bg, refiner, key, rgb)
+                    self._view = ViewImage(self.renderer, camera, bg, refiner, key, rgb)
+                    return False  # the read-back in this frame (20-40 ms at 1360 x 900), the latent pass from the next
                 t0 = time.perf_counter()
                 stage = view.stage
                 done = view.advance(self.draws.frame_budget(False))

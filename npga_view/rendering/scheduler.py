@@ -80,7 +80,7 @@ class DrawScheduler:
     """See the module docstring. `frame()` once per UI frame; `status` and `scale` describe the shown image."""
 
     def __init__(self, renderer: SplatRenderer, budget_ms: float = 25.0, interactive_ms: float = 120.0,
-                 min_scale: float = 0.2, settle_s: float = 0.15, lod: LiveDetail | None = None,
+                 min_scale: float = 0.2, settle_s: float = 0.1, lod: LiveDetail | None = None,
                  lod_wait_ms: float = 200.0, lod_interactive_ms: float = 40.0):
         self.renderer = renderer
         self.lod = lod
