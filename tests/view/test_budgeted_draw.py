@@ -14,7 +14,7 @@ import pytest
 from npga_core.camera.cameras import frame_points
 from npga_core.model.gaussians import PosedGaussians
 from npga_core.model.synthetic import make_synthetic_avatar
-from npga_view.rendering.scheduler import FIRST_SCALE, DrawScheduler, scaled_camera
+from npga_view.rendering.scheduler import FIRST_SCALE, REFINE_BUDGETS, DrawScheduler, scaled_camera
 from tests.support.render import accumulated
 
 
@@ -251,6 +251,8 @@ def test_live_budget_has_no_cliff(renderer):
         assert s.frame_budget(True) == pytest.approx(25.0 / 3)
     s.ui_ms = 200.0  # a refinement (not live) takes up to 4 budgets beside a slow UI
     assert s.frame_budget(False) == pytest.approx(100.0)
+    s.ui_ms = 5.0  # and at least REFINE_BUDGETS beside a quick one (the view is still)
+    assert s.frame_budget(False) == pytest.approx(REFINE_BUDGETS * 25.0)
 
 
 def test_released_drag_refines_at_once_and_a_programmatic_move_settles_first(renderer, posed):
