@@ -32,6 +32,7 @@ def window(display, tmp_path_factory):
     from npga_view.app import ViewerApp
 
     app = ViewerApp(900, 700, vsync=False, threads=1, remember_recent=False)
+    app.state.show_stats = False  # its figures change from frame to frame over the view (every test reads it)
     yield app, root
     app.close()
     mp.undo()
@@ -40,7 +41,6 @@ def window(display, tmp_path_factory):
 def test_window_on_a_lam_zip(window):
     app, root = window
     zpath = write_lam_zip(root / "avatar.zip", n=1500, seed=4)
-    app.state.show_stats = False  # its figures change from frame to frame over the view
     blank = app.read_window(viewport_only=True)
     assert app.open_avatar(str(zpath)), app.state.errors
     a = app.avatar
