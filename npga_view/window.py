@@ -20,7 +20,7 @@ import moderngl
 import numpy as np
 
 from npga_view.imgui_glfw import drawable, glfw, imgui
-from npga_view.rendering.gl import release_current_egl, window_context
+from npga_view.rendering.gl import prefer_raster_threads, release_current_egl, window_context
 
 SIDE_PANEL = 400  # logical pixels
 DRAW_VERT_BYTES = 20  # ImDrawVert: position (2 floats), uv (2 floats), colour (4 bytes)
@@ -37,6 +37,7 @@ class Window:
     def __init__(self, width: int, height: int, visible: bool = True, vsync: bool = True,
                  on_drop: Callable[[Any, list[str]], None] | None = None, title: str = "npga-view"):
         release_current_egl()  # a current headless context of this process would make the window's GLX fail
+        prefer_raster_threads()  # (before the driver loads with the first window)
         if not glfw.init():
             raise RuntimeError("glfw could not initialise (no display? set DISPLAY or use Xvfb)")
         glfw.window_hint(glfw.OPENGL_PROFILE, glfw.OPENGL_CORE_PROFILE)

@@ -157,11 +157,12 @@ def run(peer: Path | None, width: int, height: int, frames: int, rounds: int, sc
     from npga_view.benchmarks.bench_precision import cpu_name
     from npga_view.benchmarks.bench_window import start_xvfb
     from npga_view.imgui_glfw import glfw
-    from npga_view.rendering.gl import release_current_egl
+    from npga_view.rendering.gl import prefer_raster_threads, release_current_egl
 
     xvfb = start_xvfb()
     try:
         release_current_egl()  # a current headless context (the bench's) would make the windows' GLX fail
+        prefer_raster_threads()  # as the viewer's window does (the peer, in this process, gets the same count)
         if not glfw.init():
             raise RuntimeError("glfw could not initialise")
         posed = _scene()
@@ -190,6 +191,7 @@ def run(peer: Path | None, width: int, height: int, frames: int, rounds: int, sc
             Image.fromarray(theirs.read(width, height)).save(screenshots / "peer.png")
         med = {k: statistics.median(v) for k, v in times.items()}
         res = {"cpu": cpu_name(), "size": [width, height], "frames": frames, "rounds": rounds,
+               "raster_threads": os.environ.get("LP_NUM_THREADS"),
                "gaussians": len(posed), "ours_ms": med["ours"], "peer_ms": med["peer"],
                "ours_ms_all": times["ours"], "peer_ms_all": times["peer"],
                "ours_points_fraction": float(np.mean(points)), "peer_over_ours": med["peer"] / med["ours"],
@@ -198,7 +200,7 @@ def run(peer: Path | None, width: int, height: int, frames: int, rounds: int, sc
               f"ours {med['ours']:.0f} ms, peer {med['peer']:.0f} ms per frame (median) -> ours "
               f"{res['peer_over_ours']:.2f}x the peer's speed (points in {res['ours_points_fraction']:.0%} of ours; "
               f"ours: sort {res['ours_sort_ms']:.1f}, pre-pass {res['ours_preprocess_ms']:.1f}, splats "
-              f"{res['ours_draw_ms']:.0f} ms, the rest presenting)")
+              f"{res['ours_draw_ms']:.0f} ms, the rest presenting; LP_NUM_THREADS {res['raster_threads']})")
         return res
     finally:
         glfw.terminate()

@@ -358,3 +358,46 @@ def test_osmesa_fallback_renders(tmp_path):
     if res.stdout.startswith("UNAVAILABLE"):
         pytest.skip(res.stdout.strip())
     assert float(res.stdout.split()[1]) >= MIN_PSNR
+
+
+def test_llvmpipe_gets_two_raster_threads_per_cpu_unless_set(monkeypatch):
+    """`prefer_raster_threads` (called before the first context) asks llvmpipe for RASTER_THREADS_PER_CPU threads
+    per usable CPU, and leaves a person's LP_NUM_THREADS alone."""
+    from npga_view.rendering import gl
+
+    monkeypatch.delenv("LP_NUM_THREADS", raising=False)
+    gl.prefer_raster_threads()
+    cpus = len(os.sched_getaffinity(0)) if hasattr(os, "sched_getaffinity") else os.cpu_count()
+    assert os.environ["LP_NUM_THREADS"] == str(gl.RASTER_THREADS_PER_CPU * cpus)
+    monkeypatch.setenv("LP_NUM_THREADS", "3")
+    gl.prefer_raster_threads()
+    assert os.environ["LP_NUM_THREADS"] == "3"
+
+
+RASTER_THREADS_SCRIPT = """
+import hashlib, os, sys
+from npga_view.rendering.gl import create_headless_context
+from npga_view.rendering.renderer import SplatRenderer
+from tests.support.render import off_centre_camera, random_cloud
+ctx = create_headless_context()
+r = SplatRenderer(ctx, 160, 120)
+r.set_gaussians(random_cloud(3000, seed=21))
+cam = off_centre_camera((0.1, 0.0, 3.0)).resized(384, 320)  # 6 x 5 tiles of 64 pixels among the threads
+print(os.environ["LP_NUM_THREADS"], hashlib.sha256(r.render(cam).tobytes()).hexdigest())
+"""
+
+
+def test_the_image_does_not_depend_on_the_raster_threads():
+    """The same pixels with 1 and 4 llvmpipe threads (tiles are split among threads; each pixel blends its splats
+    in the sorted order either way), so the default of more threads changes only the time."""
+    import subprocess
+
+    root = str(Path(__file__).resolve().parents[2])
+    out = []
+    for n in ("1", "4"):
+        res = subprocess.run([sys.executable, "-c", RASTER_THREADS_SCRIPT], capture_output=True, text=True,
+                             timeout=120, cwd=root, env={**os.environ, "PYTHONPATH": root, "LP_NUM_THREADS": n})
+        assert res.returncode == 0, res.stderr[-2000:]
+        out.append(res.stdout.split())
+    assert [o[0] for o in out] == ["1", "4"]
+    assert out[0][1] == out[1][1]
