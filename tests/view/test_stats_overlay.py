@@ -1,0 +1,39 @@
+"""The statistics overlay: its figures are refreshed every REFRESH_S (frames whose imgui output and view image are
+those on screen are not drawn again), what the image is at once."""
+
+from __future__ import annotations
+
+from types import SimpleNamespace
+
+from npga_view.panels import stats
+from npga_view.panels.info import AppInfo
+from npga_view.state import ViewerState
+
+
+def test_figures_every_refresh_what_the_image_is_at_once(monkeypatch):
+    shown: list[str] = []
+    fake = SimpleNamespace(text=shown.append, text_colored=lambda colour, text: shown.append(text),
+                           end=lambda: None, ImVec4=lambda *c: c)
+    monkeypatch.setattr(stats, "imgui", fake)
+    monkeypatch.setattr(stats, "_begin", lambda: None)
+    clock = [100.0]
+    monkeypatch.setattr(stats.time, "perf_counter", lambda: clock[0])
+    overlay, state = stats.StatsOverlay(), ViewerState()
+    info = AppInfo(fps=30.0, image_status="refining", draw_progress=0.1)
+
+    def frame() -> list[str]:
+        shown.clear()
+        overlay.draw(state, info)
+        return list(shown)
+
+    first = frame()
+    assert "UI:  30.0 fps" in first and any("(10% drawn)" in t for t in first)
+    info.fps, info.draw_progress = 31.0, 0.5  # the figures move every frame ...
+    clock[0] += 0.05
+    assert frame() == first  # ... the overlay (and so imgui's output) stays until REFRESH_S has passed
+    clock[0] += stats.REFRESH_S
+    later = frame()
+    assert "UI:  31.0 fps" in later and any("(50% drawn)" in t for t in later)
+    info.image_status = "exact"  # what the image is: at once
+    clock[0] += 0.01
+    assert any(t.startswith("image: exact") for t in frame())
