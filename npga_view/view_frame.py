@@ -72,7 +72,7 @@ class ViewFrame:
         if shown != self._shown_view:
             self._shown_view, self._changed_t = shown, now
         moving = self._held() and now - self._changed_t < self.draws.settle_s
-        return (moving or self._playing() or self.live.busy() or self.poses.preview or self.poses.canonical)
+        return moving or self._playing() or self.live.busy() or self.poses.preview or self.poses.canonical
 
     def schedule(self, framebuffer: moderngl.Framebuffer) -> View:
         """This frame's splat drawing (`DrawScheduler`), the refinement or the comparison; returns what the view

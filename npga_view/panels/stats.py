@@ -4,6 +4,7 @@ from __future__ import annotations
 
 import math
 import time
+from collections.abc import Callable
 
 from imgui_bundle import imgui
 
@@ -24,16 +25,17 @@ Line = tuple[tuple[float, float, float, float] | None, str]  # (colour or None, 
 class StatsOverlay:
     """An overlay in the top-right corner of the splat view: counts, rates, what the image is, stage times."""
 
-    def __init__(self) -> None:
+    def __init__(self, clock: Callable[[], float] = time.perf_counter) -> None:
+        self._clock = clock
         self._lines: list[Line] = []
-        self._state: tuple | None = None  # what the lines said the image is
+        self._shown: tuple | None = None  # what the lines said the image is
         self._t = -math.inf  # when they were made
 
     def draw(self, state: ViewerState, info: AppInfo) -> None:
-        now = time.perf_counter()
+        now = self._clock()
         shown = _shown_state(info)
-        if shown != self._state or now - self._t >= REFRESH_S:
-            self._lines, self._state, self._t = lines(info), shown, now
+        if shown != self._shown or now - self._t >= REFRESH_S:
+            self._lines, self._shown, self._t = lines(info), shown, now
         _begin()
         for colour, text in self._lines:
             if colour is None:

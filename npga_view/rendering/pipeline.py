@@ -153,13 +153,13 @@ class ViewImage:
             if self.cnn is None or self.cnn.cnn is None:
                 self.image, self.stage = self.rgb, "done"
                 return True
-            t0 = time.perf_counter()
             if self._full_latent():
+                t_latent = time.perf_counter()
                 if not self._latent_slices(budget_ms):
                     return False
-                if (time.perf_counter() - t0) * 1e3 >= budget_ms:
+                if (time.perf_counter() - t_latent) * 1e3 >= budget_ms:
                     return False  # the CNN's input (~70 ms of compositing at 1360 x 900) in the next call
-                t0 = time.perf_counter()
+            t0 = time.perf_counter()
             image = cnn_input(self.renderer, self.cnn.cnn, self.camera, self.background, self.rgb, self._latent)
             self.timings["latent"] = (time.perf_counter() - t0) * 1e3
             self._latent = None

@@ -17,8 +17,7 @@ def test_figures_every_refresh_what_the_image_is_at_once(monkeypatch):
     monkeypatch.setattr(stats, "imgui", fake)
     monkeypatch.setattr(stats, "_begin", lambda: None)
     clock = [100.0]
-    monkeypatch.setattr(stats.time, "perf_counter", lambda: clock[0])
-    overlay, state = stats.StatsOverlay(), ViewerState()
+    overlay, state = stats.StatsOverlay(clock=lambda: clock[0]), ViewerState()
     info = AppInfo(fps=30.0, image_status="refining", draw_progress=0.1)
 
     def frame() -> list[str]:
