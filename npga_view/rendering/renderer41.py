@@ -40,6 +40,8 @@ from npga_view.rendering.uniforms import mat4_bytes, uniform
 #: texels per row of the splat and latent textures (the shaders' SPLAT_TEXTURE_WIDTH)
 TEXTURE_WIDTH = 4096
 MIN_ALPHA = 1.0 / 255.0
+#: what a GL point's side adds to the ellipse's box (splat_common.glsl POINT_MARGIN)
+POINT_MARGIN = 0.05
 
 
 def load_shader41(name: str, defines: Mapping[str, object] | None = None) -> str:
@@ -148,7 +150,7 @@ def _preprocess_chunk(cols: Columns, sl: slice, camera: Camera, proj: np.ndarray
     dx, dy, dz = x - centre[0], y - centre[1], z - centre[2]
     norm = np.sqrt(dx * dx + dy * dy + dz * dz)
     o[:, 12], o[:, 13], o[:, 14] = _sh_colour(cols, sl, (dx / norm, dy / norm, dz / norm))
-    o[:, 15] = f32(2.0) * np.maximum(hx, hy) + f32(1.0)  # point_side (splat_common.glsl)
+    o[:, 15] = f32(2.0) * np.maximum(hx, hy) + f32(POINT_MARGIN)  # point_side (splat_common.glsl)
 
 
 def preprocess(cols: Columns, order: np.ndarray, camera: Camera, flip_y: bool, max_point: float,

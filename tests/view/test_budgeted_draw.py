@@ -269,3 +269,28 @@ def test_released_drag_refines_at_once_and_a_programmatic_move_settles_first(ren
         assert sched.scale < 1.0
         sched.frame(cams[1], "rgb", content_version=1, interacting=False, now=1.1)
         assert sched.settled is interacting  # released: refined at once; moved by a script: within settle_s
+
+
+def test_points_equal_quads_at_any_subpixel_position(make_renderer, gl_path):
+    """A point's square is the ellipse's box plus POINT_MARGIN (0.05 px, splat_common.glsl): small and large,
+    round and thin splats at random sub-pixel positions, opacities near 1/255 (a box of almost nothing) and near
+    1, drawn as points keep exactly the quad path's pixels, on both GL paths."""
+    from tests.support.render import off_centre_camera, random_cloud
+
+    g = random_cloud(3000, seed=7)
+    rng = np.random.default_rng(7)
+    g.opacities[:] = np.where(rng.random(len(g)) < 0.3, rng.uniform(1.0 / 255.0, 0.02, len(g)),
+                              rng.uniform(0.02, 1.0, len(g))).astype(np.float32)
+    r = make_renderer(64, 64)
+    try:
+        r.set_gaussians(g)
+        for i, eye in enumerate([(0.4, 0.3, 3.0), (0.13, -0.27, 2.3), (-1.9, 0.71, 2.2)]):
+            cam = off_centre_camera(eye)
+            r.use_points = False
+            quads = r.render(cam)
+            r.use_points = True
+            points = r.render(cam)
+            assert r.last_timings["points"] == 1.0 and quads.max() > 0.2, i
+            np.testing.assert_array_equal(points, quads)
+    finally:
+        r.release()
