@@ -9,6 +9,7 @@ flat in vec3 v_feature;
 
 uniform int u_style;
 uniform float u_point_px;
+uniform float u_colour_scale;  // what the target stores premultiplied colour at (npga_view/rendering/targets.py)
 
 layout(location = 0) out vec4 frag_colour;
 
@@ -21,12 +22,12 @@ void main() {
     float power = -0.5 * (v_conic.x * d.x * d.x + v_conic.z * d.y * d.y) - v_conic.y * d.x * d.y;
     float alpha = min(MAX_ALPHA, v_centre_opacity.w * exp(power));
     alpha = (power > 0.0 || alpha < MIN_ALPHA) ? 0.0 : alpha;
-    frag_colour = vec4(v_feature * alpha, alpha);
+    frag_colour = vec4(v_feature * (alpha * u_colour_scale), alpha);
 #else
     float shade;
     float alpha = style_alpha(gl_FragCoord.xy - v_centre_opacity.xy, v_conic, v_centre_opacity.w, u_style,
                               u_point_px, shade);
     if (alpha < 0.0) discard;
-    frag_colour = vec4(v_feature * shade * alpha, alpha);
+    frag_colour = vec4(v_feature * (shade * alpha * u_colour_scale), alpha);
 #endif
 }

@@ -187,6 +187,7 @@ def _evaluate(args) -> int:
         ctx = create_headless_context()
         first = capture.views[views[0]].camera
         renderer = create_renderer(ctx, first.width, first.height)
+        renderer.precise_colour = True  # scored as floats: no 16-bit colour target
     except GLUnavailableError as exc:
         raise EvaluateError(str(exc)) from None
     rows: list[Row] = []

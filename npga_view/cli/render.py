@@ -330,6 +330,7 @@ def _render(args) -> int:
     try:
         ctx = create_headless_context()
         renderer = create_renderer(ctx, camera.width, camera.height)
+        renderer.precise_colour = True  # written as floats: no 16-bit colour target
     except GLUnavailableError as exc:
         raise RenderError(str(exc)) from None
     if getattr(args, "verbose", False):

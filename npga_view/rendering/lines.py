@@ -36,7 +36,8 @@ class Lines(Protocol):
     def set_positions(self, positions: np.ndarray) -> None: ...
     def set(self, positions: np.ndarray, edges: np.ndarray, colours: np.ndarray) -> None: ...
     def clear(self) -> None: ...
-    def draw(self, camera: Camera, flip_y: bool, near: float, far: float = 1000.0) -> None: ...
+    def draw(self, camera: Camera, flip_y: bool, near: float, far: float = 1000.0,
+             colour_scale: float = 1.0) -> None: ...
     def release(self) -> None: ...
 
 
@@ -87,12 +88,14 @@ class LinePass:
     def clear(self) -> None:
         self._edges = 0
 
-    def draw(self, camera: Camera, flip_y: bool, near: float, far: float = 1000.0) -> None:
-        """Blend the lines into the current framebuffer (viewport and blend state set by the caller)."""
+    def draw(self, camera: Camera, flip_y: bool, near: float, far: float = 1000.0, colour_scale: float = 1.0) -> None:
+        """Blend the lines into the current framebuffer (viewport and blend state set by the caller), their
+        premultiplied colour at `colour_scale` (the target's, targets.py)."""
         if not self._edges:
             return
         uniform(self._prog, "u_view").write(mat4_bytes(camera.world_to_camera))
         uniform(self._prog, "u_proj").write(mat4_bytes(camera.opengl_projection(near, far, flip_y)))
+        uniform(self._prog, "u_colour_scale").value = colour_scale
         self._buffers["positions"].bind_to_storage_buffer(6)
         self._buffers["edges"].bind_to_storage_buffer(7)
         self._buffers["colours"].bind_to_storage_buffer(8)

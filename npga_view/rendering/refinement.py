@@ -352,6 +352,7 @@ class Refiner:
         uniform(self._program, "u_image").value = 0
         uniform(self._program, "u_background").value = (0.0, 0.0, 0.0)
         uniform(self._program, "u_flip_y").value = 1 if flip_y else 0
+        uniform(self._program, "u_colour_scale").value = 1.0  # an RGBA8 image at its true colour
         self._vao.render(moderngl.TRIANGLES, vertices=3)
 
     def release(self) -> None:

@@ -70,13 +70,13 @@ from npga_view.rendering.drawcost import PathCosts
 from npga_view.rendering.lines import Lines
 from npga_view.rendering.slice_cost import SliceCost, footprints
 from npga_view.rendering.sorting import sort_back_to_front, view_depths
+from npga_view.rendering.targets import ImageTargets
 from npga_view.rendering.uniforms import mat4_bytes, uniform
 
 #: The GLSL sources: the repository's shaders/, installed as the package data `npga_view.shaders`.
 SHADER_DIR = Path(str(importlib.resources.files("npga_view.shaders")))
 NEAR = 0.01
 _GROUP = 128
-_Target = tuple[moderngl.Texture, moderngl.Framebuffer]  # a colour texture and its framebuffer
 _INCLUDE = re.compile(r'^#include\s+"([^"]+)"\s*$', re.MULTILINE)
 MODES = ("rgb", "depth", "alpha")
 STYLES = ("splats", "points", "ellipsoids")
@@ -108,6 +108,8 @@ class DrawJob:
     slices: int = 0
     draw_ms: float = 0.0
     synced: bool = True  # every slice was finished before it was timed
+    internal: bool = True  # drawn into the back target (swapped to the front when finished)
+    colour_scale: float = 1.0  # the target's premultiplied colour factor (targets.py)
 
 
 def camera_key(camera: Camera) -> tuple:
@@ -171,8 +173,10 @@ class SplatRenderer(AuxiliaryPasses):
         self._buffers: dict[str, moderngl.Buffer] = {}
         self._sh_coeffs = 1
         self._pending_upload_ms = 0.0
-        self._size = (0, 0)  # size of the back target
-        self._targets: list[tuple[moderngl.Texture, moderngl.Framebuffer] | None] = [None, None]  # front, back
+        self._targets = ImageTargets(ctx)  # front: the finished image; back: the one being drawn
+        #: colour images into RGBA32F instead of the faster RGBA16 (targets.py): for offline images (`render`,
+        #: `evaluate`) that are written or scored as floats
+        self.precise_colour = False
         self._latent_fbo: tuple[int, moderngl.Framebuffer, list[moderngl.Texture]] | None = None
         self._latent_job = None  # a latent image being drawn in slices (aux_passes.begin_latent)
         self._prepared: tuple | None = None  # (camera key, flip) of the current splat buffer + order
@@ -182,7 +186,7 @@ class SplatRenderer(AuxiliaryPasses):
         #: on a real GPU to let the stages overlap (the timings then only measure submission).
         self.sync_timings = True
         self.last_timings: dict[str, float] = {}
-        self._resize(width, height)
+        self._targets.back(width, height, precise=False)
 
     # --- resources -----------------------------------------------------------------------------
     def _build_preprocess(self) -> moderngl.ComputeShader | None:
@@ -203,44 +207,18 @@ class SplatRenderer(AuxiliaryPasses):
         headless one, or tests) moderngl does not switch by itself, and GL calls would reach the wrong one."""
         self.ctx.__enter__()
 
-    def _resize(self, width: int, height: int) -> None:
-        """Make the back target `width` x `height` (the front keeps the last finished image)."""
-        back = self._targets[1]
-        if back is not None and back[0].size == (width, height):
-            return
-        info = self.ctx.info  # a target larger than GL allows crashed natively (stack smashing) in Mesa
-        limit = min(int(info.get("GL_MAX_TEXTURE_SIZE", 16384)), int(info.get("GL_MAX_RENDERBUFFER_SIZE", 16384)),
-                    *(int(v) for v in info.get("GL_MAX_VIEWPORT_DIMS", (16384, 16384))))
-        if not (1 <= width <= limit and 1 <= height <= limit):
-            raise ValueError(f"image size {width}x{height} is outside what this GL can allocate (1..{limit} per side)")
-        if back is not None:
-            back[1].release()
-            back[0].release()
-        self._size = (width, height)
-        tex = self.ctx.texture((width, height), 4, dtype="f4")
-        tex.filter = (moderngl.NEAREST, moderngl.NEAREST)
-        self._targets[1] = (tex, self.ctx.framebuffer([tex]))
-
     @property
     def _colour_tex(self) -> moderngl.Texture | None:
         """The finished image (front target)."""
-        return None if self._targets[0] is None else self._targets[0][0]
-
-    @property
-    def _fbo(self) -> moderngl.Framebuffer | None:
-        return None if self._targets[0] is None else self._targets[0][1]
+        return self._targets.front_texture
 
     @property
     def image_size(self) -> tuple[int, int]:
         """(width, height) of the finished image that `present` shows ((0, 0) before the first)."""
-        return (0, 0) if self._targets[0] is None else self._targets[0][0].size
+        return self._targets.size
 
     def _release_targets(self) -> None:
-        for target in self._targets:
-            if target is not None:
-                target[1].release()
-                target[0].release()
-        self._targets = [None, None]
+        self._targets.release()
         self._job = None
         if self._latent_fbo is not None:
             _, fbo, textures = self._latent_fbo
@@ -427,16 +405,18 @@ class SplatRenderer(AuxiliaryPasses):
         self.last_timings = {}
         if self._count:
             self._prepare(camera, flip_y)
-        if framebuffer is None:
-            self._resize(camera.width, camera.height)
+        fbo = framebuffer if framebuffer is not None else self._targets.back(camera.width, camera.height,
+                                                                             mode == "depth" or self.precise_colour)
+        scale = 1.0 if framebuffer is not None else self._targets.back_scale
         fits = self.style == "splats" and self._oversize == 0 and self.use_points is not False
         points = fits and (self.use_points or self.path_costs.choose(camera.width, camera.height))
         self._job = DrawJob((*camera_key(camera), mode, flip_y), camera.width, camera.height, mode, points,
-                            fits and self.use_points is None, self._visible if self._count else 0)
-        self._job_camera, self._job_framebuffer = camera, framebuffer
+                            fits and self.use_points is None, self._visible if self._count else 0,
+                            internal=framebuffer is None, colour_scale=scale)
+        self._job_camera, self._job_framebuffer = camera, fbo
         if clear is not None:
-            fbo = framebuffer if framebuffer is not None else cast(_Target, self._targets[1])[1]
-            fbo.clear(*clear, viewport=(0, 0, camera.width, camera.height))
+            r, g, b, a = clear  # the colour at the target's scale (targets.py)
+            fbo.clear(r * scale, g * scale, b * scale, a, viewport=(0, 0, camera.width, camera.height))
 
     @property
     def drawing(self) -> bool:
@@ -460,8 +440,7 @@ class SplatRenderer(AuxiliaryPasses):
         if job is None:
             return True
         self._activate()
-        camera, external = cast(Camera, self._job_camera), self._job_framebuffer
-        fbo = external if external is not None else cast(_Target, self._targets[1])[1]
+        camera, fbo = cast(Camera, self._job_camera), cast(moderngl.Framebuffer, self._job_framebuffer)
         if not math.isinf(budget_ms):
             # a software GL renders lazily: work queued earlier (the window's last frame) would otherwise be
             # waited for in the first slice and be taken for the cost of splats
@@ -493,7 +472,7 @@ class SplatRenderer(AuxiliaryPasses):
         t0 = time.perf_counter()
         if job.mode == "rgb" and self._lines is not None and self._lines.edge_count:
             self._begin_pass(fbo, (0, 0, job.width, job.height))
-            self._lines.draw(camera, job.key[-1], NEAR)
+            self._lines.draw(camera, job.key[-1], NEAR, colour_scale=job.colour_scale)
             if self.sync_timings:
                 self.ctx.finish()
         job.draw_ms += (time.perf_counter() - t0) * 1e3
@@ -502,9 +481,8 @@ class SplatRenderer(AuxiliaryPasses):
         self.last_timings["visible"] = float(job.total)
         self.last_timings["points"] = float(job.points)
         self.last_timings["oversize"] = float(self._oversize)  # splats too large for a GL point (drawn as quads)
-        if external is None:
-            self._targets[0], self._targets[1] = self._targets[1], self._targets[0]
-            self._size = (0, 0) if self._targets[1] is None else self._targets[1][0].size
+        if job.internal:
+            self._targets.swap()
         self._job = None
         return True
 
@@ -520,6 +498,7 @@ class SplatRenderer(AuxiliaryPasses):
             uniform(prog, "u_guard").value = float(guard)
             uniform(prog, "u_first").value = first
             uniform(prog, "u_mode").value = 1 if job.mode == "depth" else 0
+            uniform(prog, "u_colour_scale").value = job.colour_scale
             self._points_vao.render(moderngl.POINTS, vertices=count)
             self.ctx.disable(moderngl.PROGRAM_POINT_SIZE)
         else:
@@ -529,6 +508,7 @@ class SplatRenderer(AuxiliaryPasses):
             self._set_style(prog, camera)
             uniform(prog, "u_first").value = first
             uniform(prog, "u_mode").value = 1 if job.mode == "depth" else 0
+            uniform(prog, "u_colour_scale").value = job.colour_scale
             vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
 
     def _styled_program(self) -> tuple[moderngl.Program, moderngl.VertexArray]:
@@ -567,10 +547,7 @@ class SplatRenderer(AuxiliaryPasses):
 
     def front_rgba(self) -> np.ndarray:
         """The finished image read back: premultiplied RGBA (H, W, 4) float32, rows top to bottom."""
-        front, (w, h) = self._fbo, self.image_size
-        if front is None:
-            raise ValueError("no image is finished yet")
-        return self._read(front, 0, w, h)
+        return self._targets.read_front()
 
     def front_image(self, background=(0.0, 0.0, 0.0)) -> np.ndarray:
         """The finished image over `background`: (H, W, 3) float32 C + (1 - A) bg, rows top to bottom (what `render`
@@ -595,4 +572,5 @@ class SplatRenderer(AuxiliaryPasses):
         uniform(self._composite_prog, "u_image").value = 0
         uniform(self._composite_prog, "u_background").value = tuple(float(v) for v in background)
         uniform(self._composite_prog, "u_flip_y").value = 1 if flip_y else 0
+        uniform(self._composite_prog, "u_colour_scale").value = self._targets.front_scale
         self._composite_vao.render(moderngl.TRIANGLES, vertices=3)

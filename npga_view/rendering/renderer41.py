@@ -223,8 +223,9 @@ class LinePass41:
     def clear(self) -> None:
         self._count = 0
 
-    def draw(self, camera: Camera, flip_y: bool, near: float, far: float = 1000.0) -> None:
-        """Blend the lines into the current framebuffer (viewport and blend state set by the caller)."""
+    def draw(self, camera: Camera, flip_y: bool, near: float, far: float = 1000.0, colour_scale: float = 1.0) -> None:
+        """Blend the lines into the current framebuffer (viewport and blend state set by the caller), their
+        premultiplied colour at `colour_scale` (the target's, targets.py)."""
         if not self._count:
             return
         if self._vao is None:
@@ -232,6 +233,7 @@ class LinePass41:
                                                            (self._colours, "4f1", "in_colour")])
         uniform(self._prog, "u_view").write(mat4_bytes(camera.world_to_camera))
         uniform(self._prog, "u_proj").write(mat4_bytes(camera.opengl_projection(near, far, flip_y)))
+        uniform(self._prog, "u_colour_scale").value = colour_scale
         self._vao.render(moderngl.LINES, vertices=2 * self._count)
 
     def release(self) -> None:

@@ -10,6 +10,9 @@ from npga_core.model.gaussians import PosedGaussians, normalize_quats
 from tests.support.reference_rasterizer import rasterize
 
 W, H = 128, 160
+#: how far the renderer's colour images may be from float blending: its colour target keeps 16 bits at half
+#: scale (npga_view/rendering/targets.py), a step of 3e-5 rounded at every blended layer
+COLOUR_ATOL = 3e-4
 
 
 def random_cloud(n: int, seed: int = 0, sh_degree: int = 0, spread: float = 0.5, scale=(0.01, 0.12),
