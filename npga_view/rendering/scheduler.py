@@ -51,8 +51,9 @@ FIRST_BUDGETS = 4  # the first live image after a still view may take this many 
 FIRST_SCALE = 0.7  # ... at this times the live scale (LAM p2-1, a packet -> pixels: 0.110-0.120 -> 0.079-0.085 s)
 LIVE_FRAMES = 5  # a live image is sized to take about this many UI frames (about 6 images/s at 30 UI fps)
 # a still view's full-resolution image takes this many budgets of each UI frame (the view is still: a slower UI for
-# the 0.2-0.5 s it takes is not seen; demo, orbit -> exact beside two busy processes 0.70 -> 0.56 s against one)
-REFINE_BUDGETS = 2
+# the 0.2-0.5 s it takes is not seen, a new drag in that time waits for the frame; demo, orbit -> exact beside two
+# busy processes 0.70 -> 0.56 s with 2 against 1, 0.487 -> 0.441 s with 3 against 2, no better with 4)
+REFINE_BUDGETS = 3
 
 
 def scaled_camera(camera: Camera, scale: float) -> Camera:
