@@ -7,7 +7,9 @@ about full HD for the demo (1360x900: 104 vs 128 ms); quads win where fragments 
 at 2560x1440: 335 vs 398 ms; docs/PERFORMANCE.md). The cross-over depends on the splats' sizes on screen and the
 machine, so the choice follows the measured cost of earlier images of about the same size (pixel counts within a
 factor of sqrt 2), per visible splat, and every `EXPLORE`-th image of a size tries the path that is not taken so
-that a change (an avatar, a zoom) is noticed. The images of both paths are the same.
+that a change (an avatar, a zoom) is noticed; the path not yet measured is first tried there too (it was the second
+image of a size: the window's first stop after opening, whose image then took the slower path). The images of both
+paths are the same.
 """
 
 from __future__ import annotations
@@ -40,10 +42,11 @@ class PathCosts:
         points, quads = self.cost.get((b, True)), self.cost.get((b, False))
         if points is None and quads is None:
             return width * height < PRIOR_PIXELS
-        if points is None or quads is None:  # the other path once, to compare
-            return points is None
+        explore = n % EXPLORE == EXPLORE - 1
+        if points is None or quads is None:  # the measured one, the other once in EXPLORE images to compare
+            return (points is None) == explore
         cheaper = points <= quads
-        return not cheaper if n % EXPLORE == EXPLORE - 1 else cheaper
+        return not cheaper if explore else cheaper
 
     def record(self, width: int, height: int, points: bool, draw_ms: float, splats: int) -> None:
         """The measured draw time of a finished image (synchronous timings only) of `splats` visible splats."""

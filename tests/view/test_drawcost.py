@@ -15,7 +15,9 @@ def test_unmeasured_sizes_follow_the_prior_then_the_cheaper_path():
     assert costs.choose(240, 225) is True and costs.choose(2560, 1440) is False  # the prior
     assert 1360 * 900 < PRIOR_PIXELS < 2560 * 1440  # cross-over
     costs.record(2560, 1440, False, 200.0, 80_000)
-    assert costs.choose(2560, 1440) is True  # the other path once, to compare
+    # the measured path until the EXPLORE-th image of the size, which tries the other one to compare
+    assert [costs.choose(2560, 1440) for _ in range(EXPLORE - 2)] == [False] * (EXPLORE - 2)
+    assert costs.choose(2560, 1440) is True
     costs.record(2560, 1440, True, 300.0, 80_000)
     picks = [costs.choose(2560, 1440) for _ in range(3 * EXPLORE)]
     assert picks.count(False) >= 3 * EXPLORE - 3 and picks.count(True) >= 2  # cheaper quads, points re-measured
@@ -33,10 +35,11 @@ def test_renderer_measures_both_paths_and_keeps_the_image(ctx):
         cam = frame_points(posed.means, 200, 180)
         assert r.use_points is None  # measured choice by default
         images, paths = [], []
-        for _ in range(2):
+        for _ in range(EXPLORE):
             images.append(r.render(cam))
             paths.append(r.last_timings["points"])
-        assert paths == [1.0, 0.0]  # the prior (points at this size), then quads once to compare
+        # the prior (points at this size) until the EXPLORE-th image, which draws quads once to compare
+        assert paths == [1.0] * (EXPLORE - 1) + [0.0]
         b = r.path_costs.bucket(200, 180)
         assert (b, True) in r.path_costs.cost and (b, False) in r.path_costs.cost
         # (read before the third image: its own time updates the costs, which on a busy machine may flip them)
