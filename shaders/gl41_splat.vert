@@ -20,7 +20,7 @@ flat out uint v_index;           // the Gaussian's index (id pass)
 void main() {
     Splat s = fetch_splat(gl_InstanceID + int(u_first));
     v_centre_opacity = vec4(s.centre.xy, 0.0, s.centre.w);
-    v_conic = s.conic.xyz;
+    v_conic = SPLAT_CONIC(s.conic.xyz);
     v_feature = u_mode == 1 ? vec3(s.centre.z) : s.feature.rgb;
     v_index = uint(s.conic.w + 0.5);
     if (s.centre.w <= 0.0 || (u_style != STYLE_SPLATS && s.centre.w < u_min_opacity)) {

@@ -17,7 +17,7 @@ flat out uint v_index;
 void main() {
     Splat s = fetch_splat(gl_VertexID + int(u_first));
     v_centre_opacity = vec4(s.centre.xy, 0.0, s.centre.w);
-    v_conic = s.conic.xyz;
+    v_conic = SPLAT_CONIC(s.conic.xyz);
     v_feature = u_mode == 1 ? vec3(s.centre.z) : s.feature.rgb;
     v_index = uint(s.conic.w + 0.5);
     gl_PointSize = s.feature.w;  // point_side (pre-pass)

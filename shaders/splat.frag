@@ -17,11 +17,12 @@ void main() {
 #ifdef SPLATS_ONLY
     // The colour pass of the "splats" style (its usual program): splat_alpha without the style branches, and a
     // fragment below 1/255 blended with alpha 0 instead of discarded (the same pixels: premultiplied zero adds
-    // nothing in either blend order). Both measured ~7 % faster each on llvmpipe (docs/PERFORMANCE.md).
+    // nothing in either blend order). Both measured ~7 % faster each on llvmpipe (docs/PERFORMANCE.md). The conic
+    // comes scaled for exp2 (SPLAT_CONIC): p2 is 3DGS's power times log2(e).
     vec2 d = gl_FragCoord.xy - v_centre_opacity.xy;
-    float power = -0.5 * (v_conic.x * d.x * d.x + v_conic.z * d.y * d.y) - v_conic.y * d.x * d.y;
-    float alpha = min(MAX_ALPHA, v_centre_opacity.w * exp(power));
-    alpha = (power > 0.0 || alpha < MIN_ALPHA) ? 0.0 : alpha;
+    float p2 = v_conic.x * d.x * d.x + v_conic.z * d.y * d.y + v_conic.y * d.x * d.y;
+    float alpha = min(MAX_ALPHA, v_centre_opacity.w * exp2(p2));
+    alpha = (p2 > 0.0 || alpha < MIN_ALPHA) ? 0.0 : alpha;
     frag_colour = vec4(v_feature * (alpha * u_colour_scale), alpha);
 #else
     float shade;

@@ -23,7 +23,7 @@ void main() {
     uint index = order[uint(gl_VertexID) + u_first];
     Splat s = splats[index];
     v_centre_opacity = vec4(s.centre.xy, 0.0, s.centre.w);
-    v_conic = s.conic.xyz;
+    v_conic = SPLAT_CONIC(s.conic.xyz);
     v_feature = u_mode == 1 ? vec3(s.centre.z) : s.feature.rgb;
     v_index = index;
     if (s.centre.w <= 0.0) {
