@@ -70,7 +70,7 @@ from npga_view.rendering.drawcost import PathCosts
 from npga_view.rendering.lines import Lines
 from npga_view.rendering.slice_cost import SliceCost, footprints
 from npga_view.rendering.sorting import sort_back_to_front, view_depths
-from npga_view.rendering.targets import ImageTargets
+from npga_view.rendering.targets import ImageTargets, read_rgba
 from npga_view.rendering.uniforms import mat4_bytes, uniform
 
 #: The GLSL sources: the repository's shaders/, installed as the package data `npga_view.shaders`.
@@ -527,8 +527,7 @@ class SplatRenderer(AuxiliaryPasses):
         uniform(prog, "u_min_opacity").value = float(self.style_min_opacity)
 
     def _read(self, fbo: moderngl.Framebuffer, attachment: int, width: int, height: int) -> np.ndarray:
-        data = fbo.read(viewport=(0, 0, width, height), components=4, dtype="f4", attachment=attachment)
-        return np.frombuffer(data, dtype=np.float32).reshape(height, width, 4)
+        return read_rgba(fbo, attachment, width, height)
 
     def render(self, camera: Camera, background=(0.0, 0.0, 0.0), mode: str = "rgb") -> np.ndarray:
         """Render and read back: rgb (H,W,3) C + (1-A) bg, depth (H,W) sum_i w_i z_i, or alpha (H,W) A.

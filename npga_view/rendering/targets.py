@@ -22,6 +22,12 @@ PRECISE_DTYPE = "f4"
 _Target = tuple[moderngl.Texture, moderngl.Framebuffer]
 
 
+def read_rgba(fbo: moderngl.Framebuffer, attachment: int, width: int, height: int) -> np.ndarray:
+    """Colour attachment `attachment` of `fbo` as float32 (height, width, 4), rows as stored (a read-only view)."""
+    data = fbo.read(viewport=(0, 0, width, height), components=4, dtype="f4", attachment=attachment)
+    return np.frombuffer(data, dtype=np.float32).reshape(height, width, 4)
+
+
 def colour_scale(dtype: str) -> float:
     """What premultiplied colour is multiplied by when stored in a target of `dtype`."""
     return COLOUR_SCALE if dtype == COLOUR_DTYPE else 1.0
@@ -86,8 +92,7 @@ class ImageTargets:
         if front is None:
             raise ValueError("no image is finished yet")
         (w, h), scale = front[0].size, colour_scale(front[0].dtype)
-        data = front[1].read(viewport=(0, 0, w, h), components=4, dtype="f4")
-        image = np.frombuffer(data, dtype=np.float32).reshape(h, w, 4)
+        image = read_rgba(front[1], 0, w, h)
         if scale == 1.0:
             return image
         image = image.copy()
