@@ -17,6 +17,7 @@ import numpy as np
 
 from npga_core.camera.cameras import Camera
 from npga_view.rendering.lines import LinePass, Lines
+from npga_view.rendering.slice_cost import SliceCost
 from npga_view.rendering.uniforms import uniform
 
 if TYPE_CHECKING:
@@ -39,16 +40,9 @@ class _LatentJob:
     out: np.ndarray
     pass_index: int = 0
     next: int = 0  # next sorted position of the current pass
-    slice: int = 1024  # instances of the next slice (follows the measured time of the last)
+    first_slice: int | None = None  # instances of the first slice when given (later ones: `SliceCost`)
     slices: int = 0
     draw_ms: float = 0.0
-
-
-def next_slice(count: int, ms: float, budget_ms: float) -> int:
-    """Size of the next slice of the sliced latent draw, from the `ms` a slice of `count` took: scaled toward the
-    budget (at most 4x up or down), 1024 to 2**24. (The colour pass sizes slices by `SliceCost`.)"""
-    grow = min(4.0, max(0.25, max(budget_ms, 1.0) / max(ms, 1e-3)))
-    return int(min(1 << 24, max(1024, count * grow)))
 
 
 class AuxiliaryPasses:
@@ -68,6 +62,8 @@ class AuxiliaryPasses:
         _latent_progs: dict[int, tuple[moderngl.Program, moderngl.VertexArray]]
         _latent_fbo: tuple[int, moderngl.Framebuffer, list[moderngl.Texture]] | None
         _latent_job: _LatentJob | None
+        _latent_slices: SliceCost
+        _footprints: np.ndarray | None
         _id_prog: moderngl.Program
         _id_vao: moderngl.VertexArray
         _id_target: tuple[moderngl.Texture, moderngl.Framebuffer] | None
@@ -121,7 +117,9 @@ class AuxiliaryPasses:
 
     def begin_latent(self, camera: Camera, first_slice: int | None = None) -> None:
         """Start the latent image of `camera` (`render_latent` in slices): `continue_latent` draws it, its first
-        slice `first_slice` Gaussians when given (later ones sized by their measured cost)."""
+        slice `first_slice` Gaussians when given; slices are sized by their splats' predicted cost (`SliceCost`,
+        fitted to this pass's own slices: a rate from the last slice, as before, overshot a 75 ms budget by up to
+        2x where the sorted order turns from small splats to large ones)."""
         if self._latent_dim == 0:
             raise ValueError("the uploaded Gaussians have no latent features")
         self._activate()
@@ -131,9 +129,9 @@ class AuxiliaryPasses:
         per_pass = 3 * self.max_targets
         passes = [(first, min(per_pass, self._latent_dim - first)) for first in range(0, self._latent_dim, per_pass)]
         self._latent_job = _LatentJob(self._prepared, w, h, passes,
-                                      np.empty((h, w, self._latent_dim), dtype=np.float32))
-        if first_slice is not None:
-            self._latent_job.slice = max(1, int(first_slice))
+                                      np.empty((h, w, self._latent_dim), dtype=np.float32),
+                                      first_slice=None if first_slice is None else max(1, int(first_slice)))
+        self._latent_slices.begin(self._footprints)
 
     @property
     def latent_drawing(self) -> bool:
@@ -174,13 +172,20 @@ class AuxiliaryPasses:
             while job.next < self._visible:
                 if drawn and (time.perf_counter() - t_start) * 1e3 >= budget_ms:
                     return None
-                count = self._visible - job.next if math.isinf(budget_ms) else min(self._visible - job.next, job.slice)
+                left = self._visible - job.next
+                if math.isinf(budget_ms):
+                    count = left
+                elif job.first_slice is not None:
+                    count, job.first_slice = min(left, job.first_slice), None
+                else:
+                    remaining = budget_ms - (time.perf_counter() - t_start) * 1e3
+                    count = self._latent_slices.count(job.next, self._visible, remaining)
                 t0 = time.perf_counter()
                 uniform(prog, "u_first").value = job.next
                 vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
                 if not math.isinf(budget_ms):  # a software GL renders lazily: time the slice itself
                     self.ctx.finish()
-                    job.slice = next_slice(count, (time.perf_counter() - t0) * 1e3, budget_ms)
+                    self._latent_slices.record(job.next, count, (time.perf_counter() - t0) * 1e3)
                 job.draw_ms += (time.perf_counter() - t0) * 1e3
                 job.next += count
                 job.slices += 1

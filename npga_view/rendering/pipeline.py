@@ -50,6 +50,14 @@ def cnn_input(renderer: SplatRenderer, cnn: ScreenCNN, camera: Camera, backgroun
     """The CNN's input image of `camera`'s view: [rgb, latent] at the camera's size, or (a CNN on the latent
     channels alone, e.g. Gaussian-Head-Avatar's) the latent channels over their background at the CNN's input
     size (`cnn_camera`). `rgb` and `latent` are used when the caller has them for this camera."""
+    return cnn_input_parts(renderer, cnn, camera, background, rgb, latent)()
+
+
+def cnn_input_parts(renderer: SplatRenderer, cnn: ScreenCNN, camera: Camera, background=(0.0, 0.0, 0.0),
+                    rgb: np.ndarray | None = None, latent: np.ndarray | None = None) -> Callable[[], np.ndarray]:
+    """`cnn_input` in two steps: the GL passes it needs and its checks now (the thread that holds the context),
+    the assembly when the returned function is called (by the CNN's own thread: a new image of the whole view,
+    ~70 ms at 960 x 900 on these machines, most of it the first touch of its pages)."""
     cfg = cnn.config
     if cfg.in_channels != cfg.input_channels(renderer.latent_dim):
         raise ValueError(f"the CNN takes {cfg.in_channels} channels, the avatar renders "
@@ -58,12 +66,18 @@ def cnn_input(renderer: SplatRenderer, cnn: ScreenCNN, camera: Camera, backgroun
         small = cnn_camera(camera, cfg.upsample)
         lat = latent if latent is not None and small is camera else renderer.render_latent(small)
         alpha = renderer.render(small, mode="alpha") if cfg.latent_background else None
-        return cnn.assemble(None, lat, alpha)
+        return lambda: cnn.assemble(None, lat, alpha)
     if rgb is None:
         rgb = renderer.render(camera, background)
     if renderer.latent_dim and latent is None:
         latent = renderer.render_latent(camera)
-    return cnn.assemble(rgb, latent, None)
+    colour = rgb
+    return lambda: cnn.assemble(colour, latent, None)
+
+
+def made(image: np.ndarray | Callable[[], np.ndarray]) -> np.ndarray:
+    """A CNN input given as the image or as the function that assembles it (`cnn_input_parts`)."""
+    return image() if callable(image) else image
 
 
 def fit_output(image: np.ndarray, camera: Camera) -> np.ndarray:
@@ -79,13 +93,14 @@ def wants_full_latent(cnn: ScreenCNN, latent_dim: int) -> bool:
 
 
 class CnnStep(Protocol):
-    """Who runs the CNN of a `ViewImage`: `start` takes its input image (made on the GL thread), `result` gives
-    the output (clamped to [0, 1], cut to `camera`) once it is done, else None."""
+    """Who runs the CNN of a `ViewImage`: `start` takes its input image, or the function that assembles it from
+    what the GL thread drew (`cnn_input_parts`); `result` gives the output (clamped to [0, 1], cut to `camera`)
+    once it is done, else None."""
 
     @property
     def cnn(self) -> ScreenCNN | None: ...
 
-    def start(self, key: object, image: np.ndarray, camera: Camera) -> None: ...
+    def start(self, key: object, image: np.ndarray | Callable[[], np.ndarray], camera: Camera) -> None: ...
 
     def result(self, key: object) -> np.ndarray | None: ...
 
@@ -104,9 +119,9 @@ class InlineCnn:
     def cnn(self) -> ScreenCNN:
         return self._cnn
 
-    def start(self, key: object, image: np.ndarray, camera: Camera) -> None:
+    def start(self, key: object, image: np.ndarray | Callable[[], np.ndarray], camera: Camera) -> None:
         t0 = time.perf_counter()
-        self._done = (key, fit_output(self._runner(image), camera))
+        self._done = (key, fit_output(self._runner(made(image)), camera))
         self.timings["cnn"] = (time.perf_counter() - t0) * 1e3
 
     def result(self, key: object) -> np.ndarray | None:
@@ -160,8 +175,8 @@ class ViewImage:
                 if (time.perf_counter() - t_latent) * 1e3 >= budget_ms:
                     return False  # the CNN's input (~70 ms of compositing at 1360 x 900) in the next call
             t0 = time.perf_counter()
-            image = cnn_input(self.renderer, self.cnn.cnn, self.camera, self.background, self.rgb, self._latent)
-            self.timings["latent"] = (time.perf_counter() - t0) * 1e3
+            image = cnn_input_parts(self.renderer, self.cnn.cnn, self.camera, self.background, self.rgb, self._latent)
+            self.timings["latent"] = (time.perf_counter() - t0) * 1e3  # (the assembly is the CNN step's)
             self._latent = None
             self.cnn.start(self.key, image, self.camera)
             self.stage = "cnn"

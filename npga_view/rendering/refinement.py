@@ -36,7 +36,7 @@ from npga_core.inspection.colouring import FeaturePCA, colour_map, robust_range
 from npga_core.model.cnn import ScreenCNN, run_cnn, run_cnn_steps
 from npga_core.posing.device import resolve_device
 from npga_view.rendering.factory import choose_path
-from npga_view.rendering.pipeline import cnn_input, fit_output, refine_frame, wants_full_latent
+from npga_view.rendering.pipeline import cnn_input_parts, fit_output, made, refine_frame, wants_full_latent
 from npga_view.rendering.renderer import load_shader
 from npga_view.rendering.uniforms import uniform
 
@@ -247,12 +247,15 @@ class Refiner:
             raise ValueError(f"the uploaded Gaussians have {renderer.latent_dim} latent channels, the avatar "
                              f"{self.latent_dim}")
         t1 = time.perf_counter()
-        image = cnn_input(renderer, self.cnn, camera, background, rgb, latent)
+        image = cnn_input_parts(renderer, self.cnn, camera, background, rgb, latent)
         self.start(key, image, camera, {"latent": (time.perf_counter() - t1) * 1e3})
 
-    def start(self, key: object, image: np.ndarray, camera: Camera, timings: dict[str, float] | None = None) -> None:
-        """Run the CNN on its input `image` (`pipeline.cnn_input`) on the worker thread: the pipeline's CNN step
-        (`result(key)` gives its output cut to `camera`). A new start replaces an unfinished one."""
+    def start(self, key: object, image: np.ndarray | Callable[[], np.ndarray], camera: Camera,
+              timings: dict[str, float] | None = None) -> None:
+        """Run the CNN on the worker thread on its input `image` (`pipeline.cnn_input`, or the function that
+        assembles it, `cnn_input_parts`, called there too): the pipeline's CNN step (`result(key)` gives its output
+        cut to `camera`; `last_timings` ms of "input", the assembly, and "cnn"). A new start replaces an
+        unfinished one."""
         if self.cnn is None:
             raise ValueError("the avatar has no CNN for its latent features")
         timings = dict(timings or {})
@@ -266,13 +269,16 @@ class Refiner:
         cnn = self.cnn
 
         def run() -> np.ndarray | None:
+            t1 = time.perf_counter()
+            x = made(image)
             t2 = time.perf_counter()
+            timings["input"] = (t2 - t1) * 1e3
             if device.type == "cpu" and halo is not None:  # in bands: a refinement the person left stops early
-                out = _run_banded(traced, device, image, halo, stop.is_set)
+                out = _run_banded(traced, device, x, halo, stop.is_set)
             elif device.type == "cpu":  # the whole image, one operation at a time: it stops between two
-                out = run_cnn_steps(cnn, image, stop.is_set)
+                out = run_cnn_steps(cnn, x, stop.is_set)
             else:
-                out = _run_traced(traced, device, image)
+                out = _run_traced(traced, device, x)
             timings["cnn"] = (time.perf_counter() - t2) * 1e3
             return None if out is None else fit_output(out, camera)
 

@@ -68,7 +68,7 @@ from npga_core.model.gaussians import PosedGaussians, sh_degree_from_count
 from npga_view.rendering.aux_passes import AuxiliaryPasses
 from npga_view.rendering.drawcost import PathCosts
 from npga_view.rendering.lines import Lines
-from npga_view.rendering.slice_cost import SliceCost, footprints
+from npga_view.rendering.slice_cost import LATENT_PRIOR, SliceCost, footprints
 from npga_view.rendering.sorting import sort_back_to_front, view_depths
 from npga_view.rendering.targets import ImageTargets, read_rgba
 from npga_view.rendering.uniforms import mat4_bytes, uniform
@@ -155,6 +155,8 @@ class SplatRenderer(AuxiliaryPasses):
         self._job_camera: Camera | None = None
         self._job_framebuffer: moderngl.Framebuffer | None = None
         self._slices = SliceCost()  # sorted positions per slice, from their predicted cost (slice_cost.py)
+        self._latent_slices = SliceCost(LATENT_PRIOR)  # the same for the latent pass (its own rates)
+        self._footprints: np.ndarray | None = None  # the drawn splats' estimated pixels, in sorted order
         self._radius: np.ndarray | None = None  # each Gaussian's largest scale (the footprint of its splat)
         self._id_prog = self._program("splat.vert", "splat_id.frag")
         self._id_vao = ctx.vertex_array(self._id_prog, [])
@@ -371,8 +373,9 @@ class SplatRenderer(AuxiliaryPasses):
     def _plan_slices(self, z: np.ndarray, drawn: np.ndarray, camera: Camera) -> None:
         """Each drawn splat's estimated footprint, in draw order, for sizing the slices (`SliceCost`)."""
         r = self._radius
-        self._slices.begin(None if r is None else footprints(z[drawn], r[drawn], camera.fx, camera.fy,
-                                                             camera.width, camera.height))
+        self._footprints = None if r is None else footprints(z[drawn], r[drawn], camera.fx, camera.fy,
+                                                             camera.width, camera.height)
+        self._slices.begin(self._footprints)
 
     def _begin_pass(self, fbo: moderngl.Framebuffer, viewport: tuple[int, int, int, int]) -> None:
         fbo.use()

@@ -21,6 +21,8 @@ import numpy as np
 MIN_SLICE, MAX_SLICE = 512, 1 << 24
 FORGET = 0.85  # weight of the history at each new slice
 _PRIOR = np.array([2e-3, 8.0])  # ms per splat, ms per megapixel: llvmpipe on 2 cores, before any slice is timed
+#: the same for the latent pass (quads into two to eight float targets; the demo's two: ~30 ms per megapixel)
+LATENT_PRIOR = (2e-3, 32.0)
 
 
 def footprints(z: np.ndarray, radius: np.ndarray, fx: float, fy: float, width: int, height: int) -> np.ndarray:
@@ -33,12 +35,14 @@ def footprints(z: np.ndarray, radius: np.ndarray, fx: float, fy: float, width: i
 
 
 class SliceCost:
-    """See the module docstring. One per renderer; `begin` per image, `count` before and `record` after a slice."""
+    """See the module docstring. One per pass of a renderer; `begin` per image, `count` before and `record` after
+    a slice. `prior`: (ms per splat, ms per megapixel) before any slice is timed."""
 
-    def __init__(self) -> None:
+    def __init__(self, prior: tuple[float, float] | None = None) -> None:
+        start = _PRIOR if prior is None else np.array(prior, dtype=np.float64)
         self._gram = np.diag([1e6, 1e-2]) * 1e-3  # weighted normal equations of (splats, Mpx) -> ms, a weak prior
-        self._rhs = self._gram @ _PRIOR
-        self.coef = _PRIOR.copy()
+        self._rhs = self._gram @ start
+        self.coef = start.copy()
         self._cum: np.ndarray | None = None  # cumulative Mpx along the sorted order (len N + 1)
         self._cost: np.ndarray | None = None  # predicted ms of positions 0..i (len N + 1), for the current coef
 

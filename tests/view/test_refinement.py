@@ -173,6 +173,31 @@ def test_the_worker_thread_gives_the_same_image(avatar, camera, renderer, refine
     assert refiner.pending_key() is None and refiner.result("k2") is None
 
 
+def test_the_cnn_input_is_assembled_on_the_worker_thread(monkeypatch, avatar, camera, renderer, refiner):
+    """The window's thread draws the CNN's input (GL) and the worker assembles it: a new image of the whole view,
+    ~70 ms at 960 x 900 that a UI frame waited for before; the refined image is the same."""
+    import threading
+
+    renderer.set_gaussians(avatar.pose(None))
+    want = refiner.refine(renderer, camera, BG)
+    threads = []
+    assemble = refiner.cnn.assemble
+
+    def spy(*args):
+        threads.append(threading.current_thread())
+        return assemble(*args)
+
+    monkeypatch.setattr(refiner.cnn, "assemble", spy)
+    refiner.submit("k", renderer, camera, BG)
+    end = time.monotonic() + 60
+    while (got := refiner.result("k")) is None and time.monotonic() < end:
+        time.sleep(0.01)
+    assert got is not None and len(threads) == 1
+    assert threads[0] is not threading.current_thread() and threads[0].name.startswith("npga-cnn")
+    assert "input" in refiner.last_timings
+    np.testing.assert_allclose(got, want, atol=1e-6)
+
+
 @pytest.mark.slow
 def test_the_cpu_cnn_in_bands_equals_the_whole_image_and_stops_when_cancelled():
     """The window runs the CNN in bands of rows with the receptive radius as context (so a refinement of a view
@@ -217,6 +242,31 @@ def test_the_latent_pass_in_slices_equals_one_pass(avatar, camera, renderer):
     assert renderer.continue_latent(0.0) is None
     renderer.set_gaussians(posed)
     assert not renderer.latent_drawing and renderer.continue_latent(0.0) is None
+
+
+def test_latent_slices_follow_their_predicted_cost(camera, renderer):
+    """A budgeted latent pass sizes its slices by the splats' predicted cost (`SliceCost` on their footprints, its
+    own rates): the same budget gives one slice where the pass is predicted cheap, several where it is predicted
+    dear (the rate of the last slice, before, gave every image a first slice of 1,024 splats)."""
+    from npga_core.model.gaussians import PosedGaussians
+
+    rng = np.random.default_rng(3)
+    n = 4000
+    means = rng.normal(0.0, 0.05, (n, 3)).astype(np.float32)
+    quats = np.tile(np.array([1, 0, 0, 0], np.float32), (n, 1))
+    posed = PosedGaussians(means, quats, np.full((n, 3), 0.004, np.float32), np.full(n, 0.5, np.float32),
+                           rng.uniform(0, 1, (n, 1, 3)).astype(np.float32),
+                           latent=rng.normal(0, 1, (n, 4)).astype(np.float32))
+    renderer.set_gaussians(posed)
+    whole = renderer.render_latent(camera)
+    for coef, one_slice in (((1e-9, 1e-9), True), ((1e3, 1e3), False)):
+        renderer._latent_slices.coef = np.array(coef)
+        renderer._latent_slices._cost = None
+        renderer.begin_latent(camera)
+        while (got := renderer.continue_latent(50.0)) is None:
+            pass
+        assert (renderer.last_timings["slices"] == 1) is one_slice
+        np.testing.assert_array_equal(got, whole)
 
 
 def test_upload_and_present_show_the_image_upright(ctx, refiner):
