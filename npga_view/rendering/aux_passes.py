@@ -62,7 +62,7 @@ class AuxiliaryPasses:
         _latent_progs: dict[int, tuple[moderngl.Program, moderngl.VertexArray]]
         _latent_fbo: tuple[int, moderngl.Framebuffer, list[moderngl.Texture]] | None
         _latent_job: _LatentJob | None
-        _latent_slices: SliceCost
+        latent_slices: SliceCost
         _footprints: np.ndarray | None
         _id_prog: moderngl.Program
         _id_vao: moderngl.VertexArray
@@ -131,7 +131,7 @@ class AuxiliaryPasses:
         self._latent_job = _LatentJob(self._prepared, w, h, passes,
                                       np.empty((h, w, self._latent_dim), dtype=np.float32),
                                       first_slice=None if first_slice is None else max(1, int(first_slice)))
-        self._latent_slices.begin(self._footprints)
+        self.latent_slices.begin(self._footprints)
 
     @property
     def latent_drawing(self) -> bool:
@@ -179,13 +179,13 @@ class AuxiliaryPasses:
                     count, job.first_slice = min(left, job.first_slice), None
                 else:
                     remaining = budget_ms - (time.perf_counter() - t_start) * 1e3
-                    count = self._latent_slices.count(job.next, self._visible, remaining)
+                    count = self.latent_slices.count(job.next, self._visible, remaining)
                 t0 = time.perf_counter()
                 uniform(prog, "u_first").value = job.next
                 vao.render(moderngl.TRIANGLE_STRIP, vertices=4, instances=count)
                 if not math.isinf(budget_ms):  # a software GL renders lazily: time the slice itself
                     self.ctx.finish()
-                    self._latent_slices.record(job.next, count, (time.perf_counter() - t0) * 1e3)
+                    self.latent_slices.record(job.next, count, (time.perf_counter() - t0) * 1e3)
                 job.draw_ms += (time.perf_counter() - t0) * 1e3
                 job.next += count
                 job.slices += 1

@@ -155,7 +155,8 @@ class SplatRenderer(AuxiliaryPasses):
         self._job_camera: Camera | None = None
         self._job_framebuffer: moderngl.Framebuffer | None = None
         self._slices = SliceCost()  # sorted positions per slice, from their predicted cost (slice_cost.py)
-        self._latent_slices = SliceCost(LATENT_PRIOR)  # the same for the latent pass (its own rates)
+        #: sorted positions per slice of the latent pass, from their predicted cost (its own rates)
+        self.latent_slices = SliceCost(LATENT_PRIOR)
         self._footprints: np.ndarray | None = None  # the drawn splats' estimated pixels, in sorted order
         self._radius: np.ndarray | None = None  # each Gaussian's largest scale (the footprint of its splat)
         self._id_prog = self._program("splat.vert", "splat_id.frag")

@@ -249,6 +249,7 @@ def test_latent_slices_follow_their_predicted_cost(camera, renderer):
     own rates): the same budget gives one slice where the pass is predicted cheap, several where it is predicted
     dear (the rate of the last slice, before, gave every image a first slice of 1,024 splats)."""
     from npga_core.model.gaussians import PosedGaussians
+    from npga_view.rendering.slice_cost import SliceCost
 
     rng = np.random.default_rng(3)
     n = 4000
@@ -260,8 +261,7 @@ def test_latent_slices_follow_their_predicted_cost(camera, renderer):
     renderer.set_gaussians(posed)
     whole = renderer.render_latent(camera)
     for coef, one_slice in (((1e-9, 1e-9), True), ((1e3, 1e3), False)):
-        renderer._latent_slices.coef = np.array(coef)
-        renderer._latent_slices._cost = None
+        renderer.latent_slices = SliceCost(coef)  # (a weak prior: refitted from the first slice on)
         renderer.begin_latent(camera)
         while (got := renderer.continue_latent(50.0)) is None:
             pass
