@@ -65,6 +65,7 @@ class ViewerApp:
         # frame-budgeted drawing; live images from a merged level-of-detail cloud while state.merged_live
         self.lod = LiveDetail(lambda: create_renderer(self.ctx, 64, 64), self.renderer)
         self.draws = scheduler(self.renderer, budget_ms=frame_budget_ms, lod=self.lod)
+        self.draws.input_probe = self.window.input_pending
         self.profile = FrameProfile()  # wall time per section of the UI frames (stats overlay, bench)
         self.should_close = False
         self.state = ViewerState()

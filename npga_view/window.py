@@ -61,6 +61,7 @@ class Window:
         glfw.swap_interval(1 if vsync else 0)
         if on_drop is not None:  # before imgui installs (and chains) its callbacks; pyGLFW's stub lacks this form
             glfw.set_drop_callback(self.handle, on_drop)  # type: ignore[arg-type]
+        self._watch_input()
         imgui.create_context()
         imgui.get_io().set_ini_filename(None)
         ptr = ctypes.cast(self.handle, ctypes.c_void_p).value
@@ -68,6 +69,37 @@ class Window:
         imgui.backends.glfw_init_for_opengl(ptr, True)
         imgui.backends.opengl3_init("#version 330")
         self.ctx: moderngl.Context = window_context()
+
+    # -- input ----------------------------------------------------------------------------------------
+    def _watch_input(self) -> None:
+        """Count the input that can change the view (a button, the wheel, a key, the pointer while a button is
+        held) in `input_serial`; installed before imgui's callbacks, which chain to these."""
+        self.input_serial = 0
+        self._serial_taken = 0
+        self._held: set[int] = set()
+
+        def bump(*_args) -> None:
+            self.input_serial += 1
+
+        def button(_window, button: int, action: int, _mods: int) -> None:
+            (self._held.add if action == glfw.PRESS else self._held.discard)(button)
+            self.input_serial += 1
+
+        def motion(*_args) -> None:
+            if self._held:
+                self.input_serial += 1
+
+        handle = self._h
+        glfw.set_mouse_button_callback(handle, button)
+        glfw.set_scroll_callback(handle, bump)
+        glfw.set_key_callback(handle, bump)
+        glfw.set_cursor_pos_callback(handle, motion)
+
+    def input_pending(self) -> bool:
+        """Input that can change the view arrived since this frame took its input (the window system is asked
+        now: its events are queued for the next frame). Long work of a still view checks this between slices."""
+        glfw.poll_events()
+        return self.input_serial != self._serial_taken
 
     # -- geometry ---------------------------------------------------------------------------------------
     @property
@@ -114,6 +146,7 @@ class Window:
         else:
             glfw.poll_events()
         self._size_cache = None  # (a resize comes with the events)
+        self._serial_taken = self.input_serial
 
     def new_frame(self) -> None:
         """Start an imgui frame."""

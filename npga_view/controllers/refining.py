@@ -160,7 +160,7 @@ class RefineController:
                     return False  # the read-back in this frame (20-40 ms at 1360 x 900), the latent pass from the next
                 t0 = time.perf_counter()
                 stage = view.stage
-                done = view.advance(self.draws.frame_budget(False))
+                done = self.draws.bounded(view.advance, self.draws.frame_budget(False))
                 if stage == "latent":  # the latent pass in slices within the frame's budget
                     self.draws.drew_outside((time.perf_counter() - t0) * 1e3)
                 if not done:

@@ -7,6 +7,7 @@ rasterizer in tests/view/test_renderer.py; here the new paths are checked agains
 from __future__ import annotations
 
 import math
+import time
 
 import numpy as np
 import pytest
@@ -294,3 +295,32 @@ def test_points_equal_quads_at_any_subpixel_position(make_renderer, gl_path):
             np.testing.assert_array_equal(points, quads)
     finally:
         r.release()
+
+
+def test_a_still_views_work_stops_after_the_budget_in_progress_when_input_arrives(renderer):
+    """`bounded`: a still view's work (several budgets a UI frame) goes one budget at a time and asks the window
+    for input between them; input ends the frame's share (a drag waits for one budget, not for all); a live
+    image's work is one call with the whole budget and never asks."""
+    sched = DrawScheduler(renderer, budget_ms=10.0)
+    calls: list[float] = []
+    asked: list[int] = []
+
+    def step(ms: float) -> bool:
+        calls.append(ms)
+        time.sleep(0.011)  # a slice that uses its budget
+        return len(calls) == 100
+
+    sched.input_probe = lambda: bool(asked.append(1)) or len(asked) >= 2
+    assert not sched.bounded(step, 1e6)  # input arrived at the second ask: two budgets drawn
+    assert len(calls) == 2 and all(ms <= 10.0 for ms in calls)
+    calls.clear()
+    asked.clear()
+    sched.input_probe = lambda: bool(asked.append(1))  # no input: budget after budget until the share is spent
+    t0 = time.perf_counter()
+    assert not sched.bounded(step, 35.0)
+    assert (time.perf_counter() - t0) * 1e3 >= 35.0 and len(calls) <= 4 and all(ms <= 10.0 for ms in calls)
+    assert len(asked) == len(calls) - 1  # asked between budgets, not after the last
+    calls.clear()
+    asked.clear()
+    assert not sched.bounded(step, 35.0, still=False)  # a live image: the whole budget in one call, no asking
+    assert len(calls) == 1 and calls[0] > 10.0 and not asked
