@@ -99,7 +99,7 @@ class DrawScheduler:
         self.live_budget_ms = budget_ms  # what the last live frames were given (`frame_budget`)
         self.before_full_image: Callable[[], None] | None = None  # called before an image of the full cloud starts
         #: True when input that can change the view has arrived during this UI frame (the window's
-        #: `input_pending`): a still view's work, given several budgets a frame, stops after the budget in progress
+        #: `input_pending`): a still view's refinement (`bounded`) stops after the budget in progress
         self.input_probe: Callable[[], bool] | None = None
         self.interactive_ms = interactive_ms
         self.min_scale = min_scale
@@ -338,9 +338,10 @@ class DrawScheduler:
         job = self._job
         assert job is not None
         r = job.renderer
-        # (the full-resolution image itself takes the frame's share in one call: drawn one budget at a time and
-        # asking for input between them, orbit -> exact beside two busy processes took 0.523 s against 0.461)
-        if not self.bounded(r.continue_draw, budget_ms, frame_start, still=False):
+        # (the full-resolution image takes the frame's share in one call, not `bounded`: drawn one budget at a time
+        # and asking for input between them, orbit -> exact beside two busy processes took 0.523 s against 0.461)
+        left = budget_ms - (time.perf_counter() - frame_start) * 1e3
+        if not r.continue_draw(max(left, 1.0)):
             return False
         self._job = None
         t = r.last_timings
@@ -355,14 +356,13 @@ class DrawScheduler:
             self._live_wall_ms[0 if job.renderer is self.renderer else 1] = self.last_image_wall_ms
         return True
 
-    def bounded(self, step: Callable[[float], bool], budget_ms: float, frame_start: float | None = None,
-                still: bool = True) -> bool:
-        """Run `step(ms)` (work in slices of about `ms`, at least one; True once finished) until it finishes or
-        `budget_ms` since `frame_start` (default: now) is spent. A still view's refinement (`still`: the latent
-        pass and the CNN's input, given up to `REFINE_BUDGETS` budgets) goes one budget at a time and stops early
-        when `input_probe` reports input, so that a drag started meanwhile waits for one budget, not for all."""
-        start = time.perf_counter() if frame_start is None else frame_start
-        probe = self.input_probe if still else None
+    def bounded(self, step: Callable[[float], bool], budget_ms: float) -> bool:
+        """Run a still view's refinement `step(ms)` (the latent pass and the CNN's input: work in slices of about
+        `ms`, at least one; True once finished) until it finishes or `budget_ms` from now is spent, one budget at a
+        time, stopping early when `input_probe` reports input: a drag started meanwhile waits for one budget, not
+        for all (without a probe: the whole `budget_ms` in one call)."""
+        start = time.perf_counter()
+        probe = self.input_probe
         while True:
             left = budget_ms - (time.perf_counter() - start) * 1e3
             if step(max(left if probe is None else min(left, self.budget_ms), 1.0)):
