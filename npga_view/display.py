@@ -20,7 +20,8 @@ from npga_view.comparison.snapshot import CompareInfo
 class AppInfo:
     avatar: Avatar | None = None
     sequence: ExpressionSequence | None = None
-    frame: int = 0
+    frame: int = 0  # the sequence frame the playback clock is on
+    presented_frame: int = 0  # the sequence frame whose image is on screen (the clock's until one is)
     fps: float = 0.0  # UI frames per second
     frame_profile: list[str] = field(default_factory=list)  # where the UI frames' time goes (FrameProfile.lines)
     timings: dict[str, float] = field(default_factory=dict)  # ms per stage

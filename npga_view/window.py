@@ -31,6 +31,22 @@ def _memory(address: int, size: int) -> memoryview:
     return memoryview((ctypes.c_char * size).from_address(address)) if size else memoryview(b"")
 
 
+def draw_data_fingerprint(data: Any) -> int:
+    """A fingerprint of what imgui's draw data `data` draws: its vertices, indices, commands, clip rectangles and
+    sizes, and any texture it must update (equal fingerprints: the same pixels)."""
+    h = zlib.crc32(np.array([*data.display_size, *data.framebuffer_scale, data.cmd_lists_count],
+                            np.float32).tobytes())
+    for cl in data.cmd_lists:
+        v, i = cl.vtx_buffer, cl.idx_buffer
+        h = zlib.crc32(_memory(v.data_address(), v.size() * DRAW_VERT_BYTES), h)
+        h = zlib.crc32(_memory(i.data_address(), i.size() * 2), h)  # (at least 2 bytes an index)
+        cmds = [(c.elem_count, c.idx_offset, c.vtx_offset, *c.clip_rect) for c in cl.cmd_buffer]
+        h = zlib.crc32(repr(cmds).encode(), h)
+    if any(t.status != imgui.ImTextureStatus.ok for t in (data.textures or [])):
+        h = zlib.crc32(b"texture update", h ^ 0x5A5A5A5A)  # (never equal to a frame without it)
+    return h
+
+
 class Window:
     """One glfw window; `handle` is glfw's window (None once closed), `ctx` its moderngl context."""
 
@@ -166,18 +182,7 @@ class Window:
         would draw: its vertices, indices, commands, clip rectangles and sizes, and any texture it must update
         (a frame whose fingerprint and splat image are those on screen need not be drawn again)."""
         imgui.render()
-        data = imgui.get_draw_data()
-        h = zlib.crc32(np.array([*data.display_size, *data.framebuffer_scale, data.cmd_lists_count],
-                                np.float32).tobytes())
-        for cl in data.cmd_lists:
-            v, i = cl.vtx_buffer, cl.idx_buffer
-            h = zlib.crc32(_memory(v.data_address(), v.size() * DRAW_VERT_BYTES), h)
-            h = zlib.crc32(_memory(i.data_address(), i.size() * 2), h)  # (at least 2 bytes an index)
-            cmds = [(c.elem_count, c.idx_offset, c.vtx_offset, *c.clip_rect) for c in cl.cmd_buffer]
-            h = zlib.crc32(repr(cmds).encode(), h)
-        if any(t.status != imgui.ImTextureStatus.ok for t in (data.textures or [])):
-            h = zlib.crc32(b"texture update", h ^ 0x5A5A5A5A)  # (never equal to a frame without it)
-        return h
+        return draw_data_fingerprint(imgui.get_draw_data())
 
     def draw_ui(self) -> None:
         """Render imgui's draw lists (built by `finish_ui`) over the frame."""

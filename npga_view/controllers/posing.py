@@ -46,6 +46,7 @@ class PoseController:
         """Forget what was asked and shown (a new avatar)."""
         self.requested: np.ndarray | None = None
         self.shown_frame: int | None = None
+        self.presented_frame: int | None = None  # the sequence frame of the image on screen (`presented`)
         self.requested_frame: int | None = None
         self._frame_of_request: dict[int, int | None] = {}  # pending request id -> sequence frame it shows
         self._frame_of_version: dict[int, int] = {}  # content version uploaded -> sequence frame it shows
@@ -84,6 +85,7 @@ class PoseController:
     def _sequence_changed(self, e: SequenceChanged) -> None:
         seq = e.sequence
         self.playback = None if seq is None else Playback(len(seq), seq.fps)
+        self.presented_frame = None
         self.seq_codes.forget()
 
     @property
@@ -182,7 +184,7 @@ class PoseController:
                 and eng.pending is None and self.shown_code is not None and np.array_equal(code, self.shown_code):
             # a frame with the code already on screen (a held expression): it is shown as it is, and the head
             # pose of the new frame applies
-            self.shown_frame = self.requested_frame
+            self.shown_frame = self.presented_frame = self.requested_frame
             if self.playback is not None and self.shown_frame is not None:
                 self.playback.shown(self.shown_frame, time.perf_counter(), host.state.timeline.playing)
         self._take(eng.poll())
@@ -194,6 +196,7 @@ class PoseController:
         """Copy what the panels show into the frame's display snapshot."""
         eng = self.host.doc.engine
         info.frame = self.frame
+        info.presented_frame = self.frame if self.presented_frame is None else self.presented_frame
         info.posing = eng is not None and eng.pending is not None
         info.engine_status = eng.status if eng is not None else {}
         if self.playback is not None:
@@ -238,6 +241,7 @@ class PoseController:
         frame = self._frame_of_version[max(done)]
         for v in done:
             del self._frame_of_version[v]
+        self.presented_frame = frame
         pb = self.playback
         if pb is not None:
             pb.shown(frame, time.perf_counter(), self.host.state.timeline.playing)

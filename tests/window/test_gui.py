@@ -157,6 +157,9 @@ def test_load_sequence_through_the_ui_and_play(app, avatar_path, tmp_path):
     assert run_until(app, two_frames_shown, timeout=120), ("playback should show several frames", frames_seen)
     later = app.read_window(viewport_only=True)
     assert np.abs(later.astype(int) - first.astype(int)).max() > 8
+    # the timeline's slider and readout are of the frame whose image is on screen (the clock runs ahead of it)
+    presented = app.poses.presented_frame
+    assert presented in frames_seen and app.info.presented_frame == presented
 
 
 def test_bake_through_the_ui_then_play_from_the_bake(app, tmp_path):
