@@ -4,7 +4,6 @@ and recording the stream to a take that reopens as a sequence. Actions go to `Li
 
 from __future__ import annotations
 
-import math
 import time
 from collections.abc import Callable
 
@@ -15,18 +14,17 @@ from npga_core.posing.livelink import DEFAULT_PORT
 from npga_view import actions as A
 from npga_view.panels.info import AppInfo, remember
 from npga_view.panels.smoothing import smoothing_widget
-from npga_view.panels.stats import REFRESH_S
+from npga_view.panels.stats import Refreshed
 from npga_view.state import ViewerState
 
 
 class LiveLinkPanel:
     """Owns the typed address, the take path and the gains shown. The stream's counters are shown as they were
-    at most `REFRESH_S` ago (they change with every packet, and a frame whose imgui output and view image are
+    at most `stats.REFRESH_S` ago (they change with every packet, and a frame whose imgui output and view image are
     those on screen is not drawn again)."""
 
     def __init__(self, clock: Callable[[], float] = time.perf_counter) -> None:
-        self._clock = clock
-        self._counters, self._counters_t = "", -math.inf
+        self._counters: Refreshed[str] = Refreshed(clock)  # said at once: recording or not
         self.address = str(DEFAULT_PORT)
         self.take_path = "live_take.csv"
         self.gains = {n: 1.0 for n in ARKIT_52}
@@ -48,7 +46,7 @@ class LiveLinkPanel:
         remember(info, "live_start")
         imgui.text_disabled(info.live_link)
         if info.live_listening:
-            imgui.text(self._counters_line(info))
+            imgui.text(self._counters.get(lambda: info.live_counters, info.live_recording))
             if info.live_unmatched:
                 imgui.text_disabled(info.live_unmatched)
             if imgui.button("Neutral"):
@@ -68,14 +66,6 @@ class LiveLinkPanel:
                 state.actions.append(A.OpenSequence(self.recorded))
             remember(info, "live_open_take")
         imgui.tree_pop()
-
-    def _counters_line(self, info: AppInfo) -> str:
-        """The counters line, refreshed every REFRESH_S, and at once when recording starts or stops."""
-        now, line = self._clock(), info.live_counters
-        if now - self._counters_t >= REFRESH_S or line.endswith("(recording)") != self._counters.endswith(
-                "(recording)"):
-            self._counters, self._counters_t = line, now
-        return self._counters
 
     def _record(self, state: ViewerState, info: AppInfo) -> None:
         if info.live_recording:

@@ -4,7 +4,8 @@ from __future__ import annotations
 
 import math
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Hashable
+from typing import Generic, TypeVar
 
 from imgui_bundle import imgui
 
@@ -20,24 +21,35 @@ REFRESH_S = 0.25
 AMBER = (1.0, 0.8, 0.3, 1.0)
 
 Line = tuple[tuple[float, float, float, float] | None, str]  # (colour or None, text)
+T = TypeVar("T")
+
+
+class Refreshed(Generic[T]):
+    """A shown value made again every REFRESH_S, and at once when what it says changes (`what`)."""
+
+    def __init__(self, clock: Callable[[], float] = time.perf_counter) -> None:
+        self._clock = clock
+        self._value: T | None = None
+        self._what: Hashable = object()  # (equal to nothing: the first call makes the value)
+        self._t = -math.inf  # when it was made
+
+    def get(self, make: Callable[[], T], what: Hashable = None) -> T:
+        now = self._clock()
+        if self._value is None or what != self._what or now - self._t >= REFRESH_S:
+            self._value, self._what, self._t = make(), what, now
+        return self._value
 
 
 class StatsOverlay:
     """An overlay in the top-right corner of the splat view: counts, rates, what the image is, stage times."""
 
     def __init__(self, clock: Callable[[], float] = time.perf_counter) -> None:
-        self._clock = clock
-        self._lines: list[Line] = []
-        self._shown: tuple | None = None  # what the lines said the image is
-        self._t = -math.inf  # when they were made
+        self._lines: Refreshed[list[Line]] = Refreshed(clock)  # said at once: what the image is
 
     def draw(self, state: ViewerState, info: AppInfo) -> None:
-        now = self._clock()
-        shown = _shown_state(info)
-        if shown != self._shown or now - self._t >= REFRESH_S:
-            self._lines, self._shown, self._t = lines(info), shown, now
+        shown = self._lines.get(lambda: lines(info), _shown_state(info))
         _begin()
-        for colour, text in self._lines:
+        for colour, text in shown:
             if colour is None:
                 imgui.text(text)
             else:

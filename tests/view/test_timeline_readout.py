@@ -106,7 +106,7 @@ def test_live_link_counters_every_refresh(monkeypatch):
         clock[0] += REFRESH_S
         assert shown() == counters(5)
         clock[0] += 0.01
-        info.live_counters = counters(6, recording=True)  # recording starts: said at once
+        info.live_counters, info.live_recording = counters(6, recording=True), True  # recording starts: at once
         assert shown() == counters(6, recording=True)
     finally:
         driver.close()
