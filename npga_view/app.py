@@ -234,7 +234,8 @@ class ViewerApp:
                 panel.draw(self.state, self.info)
         ui_key = window.finish_ui()
         profile.mark("stats")
-        if self.view.present(window, view, ui_key, self.recorder.recording, PRESENT_AT_LEAST_S):
+        stale = self.panels.timeline.stale(self.state, self.info)
+        if self.view.present(window, view, ui_key, self.recorder.recording, PRESENT_AT_LEAST_S, stale):
             profile.mark("splats")
             self.recorder.frame()
             window.draw_ui()

@@ -29,11 +29,12 @@ def _readout(state: ViewerState, info: AppInfo) -> tuple[int, list[str]]:
                    f"achieved {info.achieved_fps:5.1f} frames/s, skipped {info.skipped}"]
 
 
-def _draw(state: ViewerState, info: AppInfo, readout: tuple[int, list[str]]) -> None:
+def _draw(state: ViewerState, info: AppInfo, readout: tuple[int, list[str]]) -> bool:
+    """The panel's widgets; whether the frame slider or readout is within the visible part of the side panel."""
     seq = info.sequence
     if seq is None:
         imgui.text_disabled("No sequence loaded.")
-        return
+        return False
     tl = state.timeline
     n = len(seq)
     if imgui.button("Pause" if tl.playing else "Play"):
@@ -51,6 +52,7 @@ def _draw(state: ViewerState, info: AppInfo, readout: tuple[int, list[str]]) -> 
     _, tl.every_frame = imgui.checkbox("Every frame", tl.every_frame)
     frame, lines = readout
     changed, f = imgui.slider_int("Frame", frame, 0, n - 1)
+    visible = imgui.is_item_visible()
     remember(info, "scrub")
     if changed:
         tl.time_s = (f + 0.5) / seq.fps
@@ -58,6 +60,7 @@ def _draw(state: ViewerState, info: AppInfo, readout: tuple[int, list[str]]) -> 
     imgui.text(lines[0])
     _, tl.speed = imgui.slider_float("Speed", tl.speed, 0.1, 4.0, "%.2fx")
     imgui.text(lines[1])
+    visible = visible or imgui.is_item_visible()
     smoothing_widget(tl)
     imgui.text(f"jitter: raw {info.jitter_raw:.4f}, smoothed {info.jitter_smoothed:.4f}")
     if has_head_pose(seq):
@@ -77,6 +80,7 @@ def _draw(state: ViewerState, info: AppInfo, readout: tuple[int, list[str]]) -> 
     else:
         imgui.text_disabled("no head pose in this sequence")
     _bake(state, info)
+    return visible
 
 
 def _bake(state: ViewerState, info: AppInfo) -> None:
@@ -139,8 +143,17 @@ class TimelinePanel:
         self.live = LiveLinkPanel()
         self._key: tuple[int, int] | None = None  # (sequence, frame on screen) the readout is of, while playing
         self._readout: tuple[int, list[str]] = (0, [])
+        self._shown = False  # the slider or readout was in view in the last frame drawn
+
+    def stale(self, state: ViewerState, info: AppInfo) -> bool:
+        """While playing: whether the readout drawn this frame is of another frame than the one `info` now says is
+        on screen (an image finished after the panels were drawn; the next frame's imgui output differs)."""
+        seq = info.sequence
+        return (self._shown and seq is not None and state.timeline.playing
+                and (id(seq), info.presented_frame) != self._key)
 
     def draw(self, state: ViewerState, info: AppInfo) -> None:
+        self._shown = False
         if not imgui.collapsing_header("Timeline", imgui.TreeNodeFlags_.default_open):
             return
         if info.sequence is not None:
@@ -148,5 +161,5 @@ class TimelinePanel:
             if key is None or key != self._key:
                 self._readout = _readout(state, info)
             self._key = key
-        _draw(state, info, self._readout)
+        self._shown = _draw(state, info, self._readout)
         self.live.draw(state, info)

@@ -11,6 +11,7 @@ class PanelDriver:
         from imgui_bundle import imgui
 
         self.imgui, self.panel, self.state, self.info = imgui, panel, state, info
+        self.open = True  # the panel's header is opened (or closed) each frame
         self.ctx = imgui.create_context()
         io = imgui.get_io()
         io.set_ini_filename(None)
@@ -27,7 +28,7 @@ class PanelDriver:
         imgui.set_next_window_pos(imgui.ImVec2(0, 0))
         imgui.set_next_window_size(imgui.ImVec2(680, 1380))
         imgui.begin("side")
-        imgui.set_next_item_open(True)
+        imgui.set_next_item_open(self.open)
         self.panel.draw(self.state, self.info)
         imgui.end()
         imgui.render()

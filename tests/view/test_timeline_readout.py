@@ -110,3 +110,38 @@ def test_live_link_counters_every_refresh(monkeypatch):
         assert shown() == counters(6, recording=True)
     finally:
         driver.close()
+
+
+def test_stale_when_an_image_finished_after_the_panel_was_drawn():
+    """`TimelinePanel.stale`: while playing, the readout drawn this frame is of another frame than the image that
+    finished after it (the window then holds that image one frame, to draw it with its readout); not when paused,
+    nor when the Timeline is collapsed."""
+    from npga_core.files.sequences import ExpressionSequence
+    from npga_view.panels import timeline
+    from npga_view.panels.info import AppInfo
+    from npga_view.state import ViewerState
+    from tests.support.panels import PanelDriver
+
+    seq = ExpressionSequence(np.zeros((100, 3), np.float32), 25.0)
+    state, info = ViewerState(), AppInfo(sequence=seq)
+    state.timeline.playing, info.presented_frame = True, 7
+    panel = timeline.TimelinePanel()
+    driver = PanelDriver(panel, state, info)
+    try:
+        driver.frame()
+        assert not panel.stale(state, info)
+        info.presented_frame = 8  # an image of frame 8 finished after the panel was drawn
+        assert panel.stale(state, info)
+        driver.frame()
+        assert not panel.stale(state, info)
+        state.timeline.playing = False
+        info.presented_frame = 9
+        driver.frame()
+        assert not panel.stale(state, info)
+        state.timeline.playing = True
+        driver.open = False  # the Timeline collapsed: nothing of the readout is drawn
+        driver.frame()
+        info.presented_frame = 10
+        assert not panel.stale(state, info)
+    finally:
+        driver.close()
