@@ -12,7 +12,9 @@ drawing with live images from the merged level-of-detail cloud ("budget + LOD", 
 - orbit (2 degrees per UI frame): complete images per second (distinct view images) and UI frames per second,
   then the time from the last orbit step to the exact full-resolution image;
 - live playback of a 25 fps sequence: distinct view images per second and the playback's achieved rate;
-- baked playback: distinct view images per second.
+- baked playback: distinct view images per second;
+both with the side panel scrolled to the Timeline (as a person who pressed Play sees it: its readout changes with
+the images). The Live Link stream's figures are taken with the panel at its Live Link part.
 """
 
 from __future__ import annotations
@@ -248,9 +250,12 @@ def measure(avatar: str, sequence: str | None, budget: bool, moves: int = 6, sec
 
 
 def _playback(app, w: _Watcher, seconds: float, baked: bool) -> dict:
+    """Playback with the side panel at the Timeline, as a person who pressed Play there sees it (its frame slider
+    and readout change with the images)."""
     tl = app.state.timeline
     tl.playing, tl.time_s = True, 0.0
     app.state.follow_sequence = True
+    app.scroll_side_panel()
     for _ in range(3):  # frames asked for before the start are not counted
         w.step()
     app.poses.playback.reset_stats()
@@ -445,6 +450,7 @@ def measure_live_link(avatar: str = "demo", samples: int = 12, seconds: float = 
         out["slider_changed_s"] = _stats(ref)
         if not app.live.start("127.0.0.1:0"):
             return {**out, "error": "; ".join(app.state.errors)}
+        app.scroll_side_panel()  # at the Live Link part (its counters in view), as after pressing Listen there
         addr = cast("LiveLinkReceiver", app.live.receiver).address  # started
         jaw, blink = ARKIT_52.index("jawOpen"), ARKIT_52.index("eyeBlinkLeft")
         frame = [int(time.time() % 86400 * 60)]
