@@ -126,12 +126,12 @@ class ViewFrame:
         return True
 
     def _hold(self, panels_stale: bool, recording: bool) -> bool:
-        """While a sequence plays (nothing held, nothing recorded): a frame whose panels are stale is not drawn,
-        so that the image waits one UI frame for the panels' readout of it and the two reach the screen in one
-        draw instead of two (each ~10-20 ms on llvmpipe). Never two frames in a row, so that images finishing in
-        every frame still reach the screen."""
+        """While a sequence plays (nothing held, recorded or streamed): a frame whose panels are stale is not
+        drawn, so that the image waits one UI frame for the panels' readout of it and the two reach the screen in
+        one draw instead of two (each ~10-20 ms on llvmpipe). Never two frames in a row, so that images finishing
+        in every frame still reach the screen; never for a Live Link stream, whose images are waited for."""
         hold = (panels_stale and not recording and not self._held_back and self._playing()
-                and not self._held())
+                and not self._held() and not self.live.busy())
         self._held_back = hold
         return hold
 

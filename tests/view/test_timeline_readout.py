@@ -145,3 +145,30 @@ def test_stale_when_an_image_finished_after_the_panel_was_drawn():
         assert not panel.stale(state, info)
     finally:
         driver.close()
+
+
+def test_a_frame_is_held_for_stale_panels_only_while_a_sequence_plays():
+    """`ViewFrame._hold`: a frame whose panels are stale waits (one frame, never two in a row) while a sequence
+    plays; not while paused, recording, streaming, or with a drag or widget held."""
+    from types import SimpleNamespace
+
+    from npga_view.panels.info import AppInfo
+    from npga_view.state import ViewerState
+    from npga_view.view_frame import ViewFrame
+
+    state, streaming, held = ViewerState(), [False], [False]
+    vf = ViewFrame(state=state, info=AppInfo(), doc=SimpleNamespace(sequence=object()), draws=None, lod=None,
+                   screen=None, poses=None, refining=None, compare=None,
+                   live=SimpleNamespace(busy=lambda: streaming[0]), edits=SimpleNamespace(kf_playing=False),
+                   camera=lambda: None, viewport=lambda: (0, 0, 1, 1))
+    vf._held = lambda: held[0]  # (imgui's input state)
+    state.follow_sequence, state.timeline.playing = True, True
+    assert [vf._hold(True, False) for _ in range(4)] == [True, False, True, False]
+    assert not vf._hold(False, False)
+    assert not vf._hold(True, True)  # recording: every frame is drawn
+    streaming[0] = True
+    assert not vf._hold(True, False)
+    streaming[0], held[0] = False, True
+    assert not vf._hold(True, False)
+    held[0], state.timeline.playing = False, False
+    assert not vf._hold(True, False)
