@@ -32,7 +32,7 @@ from npga_view.controllers.sequence_codes import SequenceCodes
 from npga_view.display import AppInfo
 from npga_view.document import Document, EngineOptions
 from npga_view.frame_profile import FrameProfile
-from npga_view.imgui_glfw import glfw, imgui
+from npga_view.imgui_glfw import glfw
 from npga_view.opening import Opener
 from npga_view.panels import Panels
 from npga_view.panels.files import FilesPanel, open_action
@@ -106,7 +106,6 @@ class ViewerApp:
         for handlers in (self.actions, self.edits, self.live, self.compare):
             self.dispatcher.include(handlers.handlers())
         self.panels = Panels(files=FilesPanel(browse=os.getcwd()))
-        self._side_scroll: float | None = None  # (scroll_side_panel)
         self._publish_info()
 
     # ------------------------------------------------------------------------------------ the document
@@ -179,24 +178,9 @@ class ViewerApp:
         return self.screen.pick(x, y)
 
     # ------------------------------------------------------------------------------------------ drawing
-    def scroll_side_panel(self, y: float = 1e9) -> None:
-        """Scroll the side panel to `y` pixels from its top in the next frame (imgui clamps it: by default its
-        end, where the Timeline and its Live Link part are)."""
-        self._side_scroll = y
-
     def _draw_ui(self) -> None:
         assert self.window is not None
-        _, fh = self.window.logical_size()
-        imgui.set_next_window_pos(imgui.ImVec2(0, 0))
-        imgui.set_next_window_size(imgui.ImVec2(SIDE_PANEL, fh))
-        flags = imgui.WindowFlags_.no_move | imgui.WindowFlags_.no_resize | imgui.WindowFlags_.no_collapse
-        if self._side_scroll is not None:
-            imgui.set_next_window_scroll(imgui.ImVec2(0.0, self._side_scroll))
-            self._side_scroll = None
-        imgui.begin("npga-view", None, flags)
-        for panel in self.panels.side:
-            panel.draw(self.state, self.info)
-        imgui.end()
+        self.panels.draw_side(self.state, self.info, SIDE_PANEL, self.window.logical_size()[1])
 
     def _publish_info(self) -> None:
         """The display snapshot the panels read, copied from the controllers' own state."""

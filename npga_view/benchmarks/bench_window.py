@@ -255,7 +255,7 @@ def _playback(app, w: _Watcher, seconds: float, baked: bool) -> dict:
     tl = app.state.timeline
     tl.playing, tl.time_s = True, 0.0
     app.state.follow_sequence = True
-    app.scroll_side_panel()
+    app.panels.scroll_side()
     for _ in range(3):  # frames asked for before the start are not counted
         w.step()
     app.poses.playback.reset_stats()
@@ -450,7 +450,7 @@ def measure_live_link(avatar: str = "demo", samples: int = 12, seconds: float = 
         out["slider_changed_s"] = _stats(ref)
         if not app.live.start("127.0.0.1:0"):
             return {**out, "error": "; ".join(app.state.errors)}
-        app.scroll_side_panel()  # at the Live Link part (its counters in view), as after pressing Listen there
+        app.panels.scroll_side()  # at the Live Link part (its counters in view), as after pressing Listen there
         addr = cast("LiveLinkReceiver", app.live.receiver).address  # started
         jaw, blink = ARKIT_52.index("jawOpen"), ARKIT_52.index("eyeBlinkLeft")
         frame = [int(time.time() % 86400 * 60)]

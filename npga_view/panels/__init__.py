@@ -6,6 +6,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+from imgui_bundle import imgui
+
 from npga_view.panels.compare import ComparePanel
 from npga_view.panels.edit import EditPanel
 from npga_view.panels.errors import ErrorsPanel
@@ -32,6 +34,7 @@ class Panels:
     compare: ComparePanel = field(default_factory=ComparePanel)
     stats: StatsOverlay = field(default_factory=StatsOverlay)
     errors: ErrorsPanel = field(default_factory=ErrorsPanel)
+    scroll_to: float | None = None  # where the side panel is scrolled in the next frame (`scroll_side`)
 
     @property
     def side(self) -> tuple:
@@ -41,3 +44,21 @@ class Panels:
     @property
     def overlays(self) -> tuple:
         return (self.stats,)
+
+    def scroll_side(self, y: float = 1e9) -> None:
+        """Scroll the side panel to `y` pixels from its top in the next frame (imgui clamps it: by default its
+        end, where the Timeline and its Live Link part are)."""
+        self.scroll_to = y
+
+    def draw_side(self, state, info, width: float, height: float) -> None:
+        """The side panel: `side` stacked in one fixed window of `width` x `height` at the window's top left."""
+        imgui.set_next_window_pos(imgui.ImVec2(0, 0))
+        imgui.set_next_window_size(imgui.ImVec2(width, height))
+        if self.scroll_to is not None:
+            imgui.set_next_window_scroll(imgui.ImVec2(0.0, self.scroll_to))
+            self.scroll_to = None
+        flags = imgui.WindowFlags_.no_move | imgui.WindowFlags_.no_resize | imgui.WindowFlags_.no_collapse
+        imgui.begin("npga-view", None, flags)
+        for panel in self.side:
+            panel.draw(state, info)
+        imgui.end()

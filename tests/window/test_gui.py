@@ -185,7 +185,7 @@ def test_a_played_image_reaches_the_window_with_its_readout(app, avatar_path, tm
     assert app.open_sequence(str(seq_path))
     settle(app)
     app.state.show_stats = False
-    app.scroll_side_panel()  # to its end, where the Timeline is
+    app.panels.scroll_side()  # to its end, where the Timeline is
     app.state.timeline.playing = True
     shown = app.read_window(viewport_only=True)
     new_images = with_readout = 0
