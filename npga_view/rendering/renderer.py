@@ -16,7 +16,8 @@ Pipeline per frame (see shaders/):
    GL's point sizes, one GL point per Gaussian: a quarter of the vertex work but the whole square's fragments;
    which is cheaper for an image size is measured (`drawcost.PathCosts`); the fragment shader evaluates
    alpha = min(0.99, o exp(-d^T S^-1 d / 2)) at d = gl_FragCoord - centre with the 2D conic, exactly as
-   renderCUDA, discards it below 1/255, and blends premultiplied "over" into an RGBA32F target.
+   renderCUDA, discards it below 1/255, and blends premultiplied "over" into the colour target (RGBA16 at half
+   scale; RGBA32F for offline images: `targets.py`).
 
 The result is C = sum_i c_i a_i T_i and A = 1 - prod_i (1 - a_i); `render` composites C + (1 - A) bg.
 
