@@ -252,8 +252,11 @@ class DrawScheduler:
         job = self._job
         if job is not None and not job.renderer.drawing:  # dropped (another pass re-ran the pre-pass)
             self._job = job = None
-        if job is not None and job.target != target and live and not job.live:
-            job.renderer.cancel_draw()  # a full-resolution refinement of a view the person has already left
+        if job is not None and ((live and not job.live and job.target != target) or (job.live and not live)):
+            # a full-resolution refinement of a view the person has already left, or a live image unfinished when
+            # the view stops: the stopped view's image starts at once, the last live image stays on screen
+            # meanwhile (finishing it took another 30-125 ms and a redraw of a busy machine first)
+            job.renderer.cancel_draw()
             self._job = job = None
         if job is None and not self._plan_and_start(camera, target, live, exact_content, now):
             return False

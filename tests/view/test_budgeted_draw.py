@@ -272,6 +272,24 @@ def test_released_drag_refines_at_once_and_a_programmatic_move_settles_first(ren
         assert sched.settled is interacting  # released: refined at once; moved by a script: within settle_s
 
 
+def test_a_live_image_unfinished_when_the_view_stops_gives_way_to_the_stopped_views_image(renderer, posed):
+    """A drag let go while a live image is still being drawn: that image is dropped and the full-resolution image of
+    the stopped view starts in the same frame (finishing the live one first took another 30-125 ms and a redraw of a
+    busy machine); the last finished image stays in front meanwhile."""
+    renderer.use_points = True
+    cams = [frame_points(posed.means, 240, 200, direction=d) for d in ("front", "three_quarter_left")]
+    sched = DrawScheduler(renderer, budget_ms=math.inf, interactive_ms=1e-3, min_scale=0.5, settle_s=10.0)
+    for _ in range(3):
+        sched.frame(cams[0], "rgb", content_version=1, interacting=False, now=0.0)
+    assert sched.settled
+    front = sched.shown_target
+    sched.budget_ms, sched.interactive_scale = 1e-3, 0.5  # one minimal slice a frame: the live image takes many frames
+    sched.frame(cams[1], "rgb", content_version=1, interacting=True, now=1.0)
+    assert renderer.drawing and sched.status == "preview" and sched.shown_target == front  # a live image under way
+    sched.frame(cams[1], "rgb", content_version=1, interacting=False, now=1.1)  # let go
+    assert renderer.drawing and sched.status == "refining" and sched.shown_target == front
+
+
 def test_points_equal_quads_at_any_subpixel_position(make_renderer, gl_path):
     """A point's square is the ellipse's box plus POINT_MARGIN (0.05 px, splat_common.glsl): small and large,
     round and thin splats at random sub-pixel positions, opacities near 1/255 (a box of almost nothing) and near
