@@ -118,6 +118,7 @@ class DrawScheduler:
         self._given_ms: float | None = None
         self._outside_ms = 0.0  # drawing since the last frame() done elsewhere (`drew_outside`)
         self._live = False  # the last frame was an interaction (see `idle`)
+        self._was_live = False  # the last frame drew at the live scale (interaction or settle time)
         self.last_image_ms = 0.0  # drawing time (pre-pass + slices) of the last finished image
         #: drawing time of a full-resolution image of every Gaussian, measured (or from a reduced one, / scale^2)
         self.full_image_ms: float | None = None
@@ -248,14 +249,16 @@ class DrawScheduler:
         if self._live and not interacting:  # a drag or a held slider let go: the view has stopped, no settle time
             self._last_change = -math.inf
         live = interacting or (now - self._last_change) < self.settle_s
+        stopped, self._was_live = self._was_live and not live, live  # the view stopped in this frame
         self._live = interacting  # (not the settle time: a live image is refined once it has passed)
         job = self._job
         if job is not None and not job.renderer.drawing:  # dropped (another pass re-ran the pre-pass)
             self._job = job = None
-        if job is not None and ((live and not job.live and job.target != target) or (job.live and not live)):
+        if job is not None and ((live and not job.live and job.target != target) or (job.live and stopped)):
             # a full-resolution refinement of a view the person has already left, or a live image unfinished when
             # the view stops: the stopped view's image starts at once, the last live image stays on screen
-            # meanwhile (finishing it took another 30-125 ms and a redraw of a busy machine first)
+            # meanwhile (finishing it took another 30-125 ms and a redraw of a busy machine first); a cheap first
+            # image of a still view (no image yet) is not a live view stopping
             job.renderer.cancel_draw()
             self._job = job = None
         if job is None and not self._plan_and_start(camera, target, live, exact_content, now):

@@ -290,6 +290,20 @@ def test_a_live_image_unfinished_when_the_view_stops_gives_way_to_the_stopped_vi
     assert renderer.drawing and sched.status == "refining" and sched.shown_target == front
 
 
+def test_a_still_views_cheap_first_image_is_kept_through_its_frames(renderer, posed):
+    """With no image on screen, a still view's first pixels come from a cheaper image (planned like a live one);
+    drawn in many small slices it is kept until it finishes: only a view that stops drops a live image (a rule
+    without the stop dropped it in every frame, and the window never drew)."""
+    sched = DrawScheduler(renderer, budget_ms=1e-3, settle_s=0.0)  # one minimal slice a frame
+    sched.interactive_scale = 0.5
+    cam = frame_points(posed.means, 240, 200)
+    for k in range(2000):
+        sched.frame(cam, "rgb", content_version=1, interacting=False, now=float(k))
+        if sched.images:
+            break
+    assert sched.images == 1 and sched.scale == 0.5
+
+
 def test_points_equal_quads_at_any_subpixel_position(make_renderer, gl_path):
     """A point's square is the ellipse's box plus POINT_MARGIN (0.05 px, splat_common.glsl): small and large,
     round and thin splats at random sub-pixel positions, opacities near 1/255 (a box of almost nothing) and near
