@@ -47,8 +47,9 @@ from npga_view.view_frame import ViewFrame
 from npga_view.view_input import ViewInput
 from npga_view.window import SIDE_PANEL, Window
 
-#: a frame is drawn at least this often even when it would be the one on screen (a safety net)
-PRESENT_AT_LEAST_S = 0.25
+#: a frame is drawn at least this often even when it would be the one on screen (a safety net: an expose, when the
+#: window system lost the window's pixels, is drawn at once); every 0.25 s cost a still window ~5 % of a core
+PRESENT_AT_LEAST_S = 2.0
 
 
 class ViewerApp:
@@ -190,7 +191,8 @@ class ViewerApp:
         info.cnn_device = str(self.refining.refiner.device)
         info.recording, info.compare = self.recorder.recording, self.compare.info()
         info.bake, info.bake_state = self.bakes.status, self.bakes.state()
-        info.inspect, info.fps = self.screen.inspection.figures, self.view.pacing.fps
+        pacing = self.view.pacing
+        info.inspect, info.fps, info.quiet = self.screen.inspection.figures, pacing.fps, pacing.was_quiet
         for part in (self.poses, self.edits, self.live):
             part.publish(info)
 
@@ -228,7 +230,8 @@ class ViewerApp:
         ui_key = window.finish_ui()
         profile.mark("stats")
         stale = self.panels.timeline.stale(self.state, self.info)
-        if self.view.present(window, view, ui_key, self.recorder.recording, PRESENT_AT_LEAST_S, stale):
+        always = self.recorder.recording or window.take_exposed()
+        if self.view.present(window, view, ui_key, always, PRESENT_AT_LEAST_S, stale):
             profile.mark("splats")
             self.recorder.frame()
             window.draw_ui()

@@ -23,6 +23,7 @@ class AppInfo:
     frame: int = 0  # the sequence frame the playback clock is on
     presented_frame: int = 0  # the sequence frame whose image is on screen (the clock's until one is)
     fps: float = 0.0  # UI frames per second
+    quiet: bool = False  # the window has nothing to do: its loop waits for input (the last frame's)
     frame_profile: list[str] = field(default_factory=list)  # where the UI frames' time goes (FrameProfile.lines)
     timings: dict[str, float] = field(default_factory=dict)  # ms per stage
     gaussians_drawn: int = 0

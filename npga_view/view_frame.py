@@ -107,30 +107,31 @@ class ViewFrame:
         return (("splats", draws.images, draws.shown_target, draws.scale, bg, viewport),
                 lambda: draws.present(framebuffer, bg, flip_y=True, viewport=viewport))
 
-    def present(self, window: Window, view: View, ui_key: int, recording: bool, at_least_s: float,
+    def present(self, window: Window, view: View, ui_key: int, always: bool, at_least_s: float,
                 panels_stale: bool = False) -> bool:
         """Draw the frame (the view, then imgui by the caller) unless it would be the frame on screen again: the
-        same view image (splats or refined) and imgui output as the last frame drawn, nothing compared or recorded,
-        drawn less than `at_least_s` ago. On a software GL drawing a frame costs ~10 ms of fill whether or not
-        anything changed: undrawn frames leave it to the images being drawn (input is still taken every frame, and
-        any change of the panels changes imgui's output). `panels_stale`: the panels were drawn before this
-        frame's image finished and would show it differently (`_hold`)."""
-        if self._hold(panels_stale, recording):
+        same view image (splats or refined) and imgui output as the last frame drawn, nothing compared, nothing that
+        asks for every frame (`always`: recording, an expose), drawn less than `at_least_s` ago. On a software GL
+        drawing a frame costs ~10 ms of fill whether or not anything changed: undrawn frames leave it to the images
+        being drawn (input is still taken every frame, and any change of the panels changes imgui's output).
+        `panels_stale`: the panels were drawn before this frame's image finished and would show it differently
+        (`_hold`)."""
+        if self._hold(panels_stale, always):
             return False
         view_key, draw = view
         key = None if view_key is None else (view_key, ui_key, window.framebuffer_size())
-        if not self.pacing.due(key, recording, at_least_s):
+        if not self.pacing.due(key, always, at_least_s):
             return False
         window.clear()
         draw()
         return True
 
-    def _hold(self, panels_stale: bool, recording: bool) -> bool:
+    def _hold(self, panels_stale: bool, always: bool) -> bool:
         """While a sequence plays (nothing held, recorded or streamed): a frame whose panels are stale is not
         drawn, so that the image waits one UI frame for the panels' readout of it and the two reach the screen in
         one draw instead of two (each ~10-20 ms on llvmpipe). Never two frames in a row, so that images finishing
         in every frame still reach the screen; never for a Live Link stream, whose images are waited for."""
-        hold = (panels_stale and not recording and not self._held_back and self._playing()
+        hold = (panels_stale and not always and not self._held_back and self._playing()
                 and not self._held() and not self.live.busy())
         self._held_back = hold
         return hold

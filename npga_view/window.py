@@ -105,11 +105,21 @@ class Window:
             if self._held:
                 self.input_serial += 1
 
+        def exposed(_window) -> None:  # uncovered, restored: the window system lost what was drawn
+            self.exposed = True
+
+        self.exposed = False  # (take_exposed)
         handle = self._h
+        glfw.set_window_refresh_callback(handle, exposed)
         glfw.set_mouse_button_callback(handle, button)
         glfw.set_scroll_callback(handle, bump)
         glfw.set_key_callback(handle, bump)
         glfw.set_cursor_pos_callback(handle, motion)
+
+    def take_exposed(self) -> bool:
+        """Whether the window system asked for the window to be drawn again since the last call (an expose)."""
+        exposed, self.exposed = self.exposed, False
+        return exposed
 
     def input_pending(self) -> bool:
         """Input that can change the view arrived since this frame took its input (the window system is asked

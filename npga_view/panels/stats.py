@@ -18,6 +18,9 @@ STAGES = (("F", "dynamics F"), ("G", "dynamics G"), ("cnn", "CNN"), ("sort", "so
 #: output and view image are those on screen is not drawn again, and the figures changed every frame: with the
 #: overlay on (its default) a still view being refined paid a buffer swap every UI frame (7-18 ms on llvmpipe).
 REFRESH_S = 0.25
+#: ... and this often while the window has nothing to do (its idle loop's own rate changes them): a still window
+#: with the overlay on was drawn 3.5 times a second for them
+QUIET_REFRESH_S = 2.0
 AMBER = (1.0, 0.8, 0.3, 1.0)
 
 Line = tuple[tuple[float, float, float, float] | None, str]  # (colour or None, text)
@@ -25,7 +28,7 @@ T = TypeVar("T")
 
 
 class Refreshed(Generic[T]):
-    """A shown value made again every REFRESH_S, and at once when what it says changes (`what`)."""
+    """A shown value made again every `period` (REFRESH_S), and at once when what it says changes (`what`)."""
 
     def __init__(self, clock: Callable[[], float] = time.perf_counter) -> None:
         self._clock = clock
@@ -33,9 +36,9 @@ class Refreshed(Generic[T]):
         self._what: Hashable = object()  # (equal to nothing: the first call makes the value)
         self._t = -math.inf  # when it was made
 
-    def get(self, make: Callable[[], T], what: Hashable = None) -> T:
+    def get(self, make: Callable[[], T], what: Hashable = None, period: float = REFRESH_S) -> T:
         now = self._clock()
-        if self._value is None or what != self._what or now - self._t >= REFRESH_S:
+        if self._value is None or what != self._what or now - self._t >= period:
             self._value, self._what, self._t = make(), what, now
         return self._value
 
@@ -47,7 +50,7 @@ class StatsOverlay:
         self._lines: Refreshed[list[Line]] = Refreshed(clock)  # said at once: what the image is
 
     def draw(self, state: ViewerState, info: AppInfo) -> None:
-        shown = self._lines.get(lambda: lines(info), _shown_state(info))
+        shown = self._lines.get(lambda: lines(info), _shown_state(info), QUIET_REFRESH_S if info.quiet else REFRESH_S)
         _begin()
         for colour, text in shown:
             if colour is None:

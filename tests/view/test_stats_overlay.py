@@ -36,3 +36,31 @@ def test_figures_every_refresh_what_the_image_is_at_once(monkeypatch):
     info.image_status = "exact"  # what the image is: at once
     clock[0] += 0.01
     assert any(t.startswith("image: exact") for t in frame())
+
+
+def test_figures_of_a_quiet_window_every_quiet_refresh(monkeypatch):
+    """While the window has nothing to do (its loop waits for input), the figures (its idle loop's own rate) are
+    refreshed every QUIET_REFRESH_S, not every REFRESH_S: a still window is not drawn again four times a second."""
+    shown: list[str] = []
+    fake = SimpleNamespace(text=shown.append, text_colored=lambda colour, text: shown.append(text),
+                           end=lambda: None, ImVec4=lambda *c: c)
+    monkeypatch.setattr(stats, "imgui", fake)
+    monkeypatch.setattr(stats, "_begin", lambda: None)
+    clock = [100.0]
+    overlay, state = stats.StatsOverlay(clock=lambda: clock[0]), ViewerState()
+    info = AppInfo(fps=30.0, image_status="exact", quiet=True)
+
+    def frame() -> list[str]:
+        shown.clear()
+        overlay.draw(state, info)
+        return list(shown)
+
+    first = frame()
+    info.fps = 27.0
+    clock[0] += stats.REFRESH_S + 0.01
+    assert frame() == first  # quiet: the figures wait
+    clock[0] += stats.QUIET_REFRESH_S
+    assert "UI:  27.0 fps" in frame()
+    info.fps, info.quiet = 33.0, False  # busy again: every REFRESH_S
+    clock[0] += stats.REFRESH_S + 0.01
+    assert "UI:  33.0 fps" in frame()
