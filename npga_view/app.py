@@ -229,7 +229,7 @@ class ViewerApp:
                 panel.draw(self.state, self.info)
         ui_key = window.finish_ui()
         profile.mark("stats")
-        stale = self.panels.timeline.stale(self.state, self.info)
+        stale = self.panels.stale(self.state, self.info)
         always = self.recorder.recording or window.take_exposed()
         if self.view.present(window, view, ui_key, always, PRESENT_AT_LEAST_S, stale):
             profile.mark("splats")

@@ -45,6 +45,11 @@ class Panels:
     def overlays(self) -> tuple:
         return (self.stats,)
 
+    def stale(self, state, info) -> bool:
+        """Whether the side panel drawn this frame shows other figures than `info` now has for the image that just
+        finished (the Timeline's readout while playing: `TimelinePanel.stale`)."""
+        return self.timeline.stale(state, info)
+
     def scroll_side(self, y: float = 1e9) -> None:
         """Scroll the side panel to `y` pixels from its top in the next frame (imgui clamps it: by default its
         end, where the Timeline and its Live Link part are)."""

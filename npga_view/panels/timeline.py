@@ -145,19 +145,24 @@ class TimelinePanel:
         self._readout: tuple[int, list[str]] = (0, [])
         self._shown = False  # the slider or readout was in view in the last frame drawn
 
+    @staticmethod
+    def _playing_key(state: ViewerState, info: AppInfo) -> tuple[int, int] | None:
+        """While a sequence plays: (sequence, frame on screen), what the readout is of; else None."""
+        playing = info.sequence is not None and state.timeline.playing
+        return (id(info.sequence), info.presented_frame) if playing else None
+
     def stale(self, state: ViewerState, info: AppInfo) -> bool:
         """While playing: whether the readout drawn this frame is of another frame than the one `info` now says is
         on screen (an image finished after the panels were drawn; the next frame's imgui output differs)."""
-        seq = info.sequence
-        return (self._shown and seq is not None and state.timeline.playing
-                and (id(seq), info.presented_frame) != self._key)
+        key = self._playing_key(state, info)
+        return self._shown and key is not None and key != self._key
 
     def draw(self, state: ViewerState, info: AppInfo) -> None:
         self._shown = False
         if not imgui.collapsing_header("Timeline", imgui.TreeNodeFlags_.default_open):
             return
         if info.sequence is not None:
-            key = (id(info.sequence), info.presented_frame) if state.timeline.playing else None
+            key = self._playing_key(state, info)
             if key is None or key != self._key:
                 self._readout = _readout(state, info)
             self._key = key
