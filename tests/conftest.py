@@ -34,13 +34,19 @@ def ctx():
     context.release()
 
 
-@pytest.fixture(scope="module", params=["43", "41"], ids=["gl43", "gl41"])
+@pytest.fixture(scope="module", params=["43", "41", "cpu"], ids=["gl43", "gl41", "cpu"])
 def gl_path(request, ctx) -> str:
-    """The splat renderer path a test runs on, "43" and "41" in turn: the OpenGL 4.1 path (CPU pre-pass, texture
-    splats) forced on this machine's 4.3+ context, so every renderer test checks both. Where the context is older
-    than 4.3 (macOS), the 4.3 path is skipped. tests/view/test_gl41.py runs the 4.1 path in a real 4.1 context."""
-    if request.param == "43" and ctx.version_code < 430:
+    """The splat renderer path a test runs on, in turn: "43" (its GL colour pass), "41" (the OpenGL 4.1 path: CPU
+    pre-pass, texture splats, forced on this machine's 4.3+ context) and "cpu" (the 4.3 path with the colour pass
+    on the CPU, what a software GL gets: npga_view/rendering/cpu_splats.py), so every renderer test checks all
+    three. Where the context is older than 4.3 (macOS), "43" and "cpu" are skipped. tests/view/test_gl41.py runs
+    the 4.1 path in a real 4.1 context."""
+    if request.param in ("43", "cpu") and ctx.version_code < 430:
         pytest.skip("the OpenGL 4.3 path needs a 4.3 context")
+    if request.param == "cpu":
+        from npga_view.rendering.cpu_splats import status, warm_up
+
+        assert warm_up(wait=True), f"the CPU colour pass did not compile: {status()}"
     return request.param
 
 
@@ -51,7 +57,9 @@ def make_renderer(ctx, gl_path) -> Callable[..., Any]:
     from npga_view.rendering.factory import create_renderer
 
     def make(width: int, height: int, exact_sort: bool = True, context: Any = None) -> Any:
-        return create_renderer(context if context is not None else ctx, width, height, exact_sort, path=gl_path)
+        path = "43" if gl_path == "cpu" else gl_path
+        return create_renderer(context if context is not None else ctx, width, height, exact_sort, path=path,
+                               cpu_colour=gl_path == "cpu")
 
     return make
 

@@ -76,6 +76,10 @@ class Ours:
         self.window, self.ctx = window, window_context()
         self.r = SplatRenderer(self.ctx, width, height)
         self.r.set_gaussians(posed)
+        if self.r.cpu_pass is not None:  # a software GL: the CPU colour pass, ready ~1 s after a window opens
+            from npga_view.rendering.cpu_splats import warm_up
+
+            warm_up(wait=True)
 
     def frame(self, camera) -> dict:
         self.window.current()

@@ -32,13 +32,14 @@ def choose_path(ctx: moderngl.Context, path: str | None = None) -> str:
 
 
 def create_renderer(ctx: moderngl.Context, width: int, height: int, exact_sort: bool = True,
-                    path: str | None = None) -> SplatRenderer:
-    """A splat renderer for `ctx` (see the module docstring); `path` "41"/"43" overrides the choice."""
+                    path: str | None = None, cpu_colour: bool | None = None) -> SplatRenderer:
+    """A splat renderer for `ctx` (see the module docstring); `path` "41"/"43" overrides the choice; `cpu_colour`
+    the 4.3 path's colour pass on the CPU (None: on a software GL, `cpu_splats.py`)."""
     if choose_path(ctx, path) == "41":
         from npga_view.rendering.renderer41 import SplatRenderer41
 
         return SplatRenderer41(ctx, width, height, exact_sort)
-    return SplatRenderer(ctx, width, height, exact_sort)
+    return SplatRenderer(ctx, width, height, exact_sort, cpu_colour)
 
 
 def describe(renderer: SplatRenderer) -> str:

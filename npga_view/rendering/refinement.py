@@ -37,7 +37,7 @@ from npga_core.model.cnn import ScreenCNN, run_cnn, run_cnn_steps
 from npga_core.posing.device import resolve_device
 from npga_view.rendering.factory import choose_path
 from npga_view.rendering.pipeline import cnn_input_parts, fit_output, made, refine_frame, wants_full_latent
-from npga_view.rendering.renderer import load_shader
+from npga_view.rendering.shader_source import load_shader
 from npga_view.rendering.uniforms import uniform
 
 if TYPE_CHECKING:

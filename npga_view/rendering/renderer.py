@@ -17,7 +17,8 @@ Pipeline per frame (see shaders/):
    which is cheaper for an image size is measured (`drawcost.PathCosts`); the fragment shader evaluates
    alpha = min(0.99, o exp(-d^T S^-1 d / 2)) at d = gl_FragCoord - centre with the 2D conic, exactly as
    renderCUDA, discards it below 1/255, and blends premultiplied "over" into the colour target (RGBA16 at half
-   scale; RGBA32F for offline images: `targets.py`).
+   scale; RGBA32F for offline images: `targets.py`). On a software GL (llvmpipe) the "splats" colour pass runs
+   instead on the CPU over the pre-pass's splats (`cpu_splats.py`: tiles, exact ellipse spans; the same image).
 
 The result is C = sum_i c_i a_i T_i and A = 1 - prod_i (1 - a_i); `render` composites C + (1 - A) bg.
 
@@ -52,13 +53,9 @@ Inspection (see npga_core/inspection/colouring.py for the colour modes, which on
 
 from __future__ import annotations
 
-import importlib.resources
 import math
-import re
 import time
-from collections.abc import Mapping
 from dataclasses import dataclass
-from pathlib import Path
 from typing import cast
 
 import moderngl
@@ -66,32 +63,20 @@ import numpy as np
 
 from npga_core.camera.cameras import Camera
 from npga_core.model.gaussians import PosedGaussians, sh_degree_from_count
+from npga_view.rendering import cpu_splats
 from npga_view.rendering.aux_passes import AuxiliaryPasses
 from npga_view.rendering.drawcost import PathCosts
 from npga_view.rendering.lines import Lines
+from npga_view.rendering.shader_source import load_shader
 from npga_view.rendering.slice_cost import LATENT_PRIOR, SliceCost, footprints
 from npga_view.rendering.sorting import sort_back_to_front, view_depths
 from npga_view.rendering.targets import ImageTargets, read_rgba
 from npga_view.rendering.uniforms import mat4_bytes, uniform
 
-#: The GLSL sources: the repository's shaders/, installed as the package data `npga_view.shaders`.
-SHADER_DIR = Path(str(importlib.resources.files("npga_view.shaders")))
 NEAR = 0.01
 _GROUP = 128
-_INCLUDE = re.compile(r'^#include\s+"([^"]+)"\s*$', re.MULTILINE)
 MODES = ("rgb", "depth", "alpha")
 STYLES = ("splats", "points", "ellipsoids")
-
-
-def load_shader(name: str, defines: Mapping[str, object] | None = None) -> str:
-    """GLSL source of shaders/`name` with `#include "file"` resolved and `defines` added after `#version`."""
-    source = (SHADER_DIR / name).read_text()
-    source = _INCLUDE.sub(lambda m: (SHADER_DIR / m.group(1)).read_text(), source)
-    if defines:
-        lines = source.split("\n", 1)
-        extra = "".join(f"#define {k} {v}\n" for k, v in defines.items())
-        source = lines[0] + "\n" + extra + (lines[1] if len(lines) > 1 else "")
-    return source
 
 
 @dataclass
@@ -111,12 +96,12 @@ class DrawJob:
     synced: bool = True  # every slice was finished before it was timed
     internal: bool = True  # drawn into the back target (swapped to the front when finished)
     colour_scale: float = 1.0  # the target's premultiplied colour factor (targets.py)
+    cpu: bool = False  # the colour pass on the CPU (cpu_splats.py)
 
 
 def camera_key(camera: Camera) -> tuple:
     """What a drawn image depends on of a camera."""
-    return (camera.world_to_camera.tobytes(), camera.fx, camera.fy, camera.cx, camera.cy, camera.width,
-            camera.height)
+    return (camera.world_to_camera.tobytes(), camera.fx, camera.fy, camera.cx, camera.cy, camera.width, camera.height)
 
 
 class SplatRenderer(AuxiliaryPasses):
@@ -125,14 +110,16 @@ class SplatRenderer(AuxiliaryPasses):
     `ctx` must be an OpenGL >= 4.3 moderngl context (`npga_view.rendering.gl`). `width`, `height` is the size of the
     internal framebuffer; cameras of another size are rendered at their own size (the targets are resized).
     `exact_sort` sorts by the exact float32 depth (two 16-bit radix passes, the order 3DGS uses); False uses
-    one pass over 16-bit quantised depths (about 2x faster; near-equal depths may swap).
+    one pass over 16-bit quantised depths (about 2x faster; near-equal depths may swap). `cpu_colour`: the
+    "splats" colour pass on the CPU (`cpu_splats.py`; None: where the GL is a software renderer).
     """
 
     _load_shader = staticmethod(load_shader)
     #: which renderer path this is (shown by the stats overlay, `info` and `render --verbose`)
     path = "OpenGL 4.3 (compute pre-pass, storage buffers)"
 
-    def __init__(self, ctx: moderngl.Context, width: int, height: int, exact_sort: bool = True) -> None:
+    def __init__(self, ctx: moderngl.Context, width: int, height: int, exact_sort: bool = True,
+                 cpu_colour: bool | None = None) -> None:
         self.ctx = ctx
         self.exact_sort = exact_sort
         self._activate()
@@ -186,11 +173,18 @@ class SplatRenderer(AuxiliaryPasses):
         self._prepared: tuple | None = None  # (camera key, flip) of the current splat buffer + order
         self._visible = 0
         self.attribute_uploads = 0  # number of set_gaussians calls (camera moves must not add to it)
-        #: glFinish after each stage so that `last_timings` measures GPU work; turn off in an interactive loop
-        #: on a real GPU to let the stages overlap (the timings then only measure submission).
+        #: glFinish after each stage so that `last_timings` measures GPU work; turn off in an interactive loop on a
+        #: real GPU to let the stages overlap (the timings then only measure submission).
         self.sync_timings = True
         self.last_timings: dict[str, float] = {}
         self._targets.back(width, height, precise=False)
+        cpu_colour = cpu_splats.wanted(str(ctx.info.get("GL_RENDERER", ""))) if cpu_colour is None else cpu_colour
+        on = self._preprocess is not None and cpu_colour
+        #: the "splats" colour pass on the CPU (a software GL: cpu_splats.py), used once compiled
+        self.cpu_pass: cpu_splats.CpuColourPass | None = cpu_splats.CpuColourPass() if on else None
+        if on:
+            cpu_splats.warm_up()  # compiled by a helper process; the GL pass draws until the kernels are ready
+        self._order: np.ndarray | None = None  # the sorted order of the current pre-pass
 
     # --- resources -----------------------------------------------------------------------------
     def _build_preprocess(self) -> moderngl.ComputeShader | None:
@@ -254,6 +248,8 @@ class SplatRenderer(AuxiliaryPasses):
         """Free all GL objects of this renderer."""
         self._activate()
         self._release_targets()
+        if self.cpu_pass is not None:
+            self.cpu_pass.release()
         for buf in self._buffers.values():
             buf.release()
         self._buffers.clear()
@@ -347,6 +343,7 @@ class SplatRenderer(AuxiliaryPasses):
         t1 = time.perf_counter()
         self._buffers["order"].write(order)
         self._visible = int(order.shape[0])
+        self._order = order
         t2 = time.perf_counter()
         prog = self._preprocess
         assert prog is not None
@@ -413,15 +410,28 @@ class SplatRenderer(AuxiliaryPasses):
         fbo = framebuffer if framebuffer is not None else self._targets.back(camera.width, camera.height,
                                                                              mode == "depth" or self.precise_colour)
         scale = 1.0 if framebuffer is not None else self._targets.back_scale
-        fits = self.style == "splats" and self._oversize == 0 and self.use_points is not False
+        cpu = (self.cpu_pass is not None and self.style == "splats" and mode != "depth" and framebuffer is None
+               and self._count > 0 and cpu_splats.warm_up())
+        fits = not cpu and self.style == "splats" and self._oversize == 0 and self.use_points is not False
         points = fits and (self.use_points or self.path_costs.choose(camera.width, camera.height))
         self._job = DrawJob((*camera_key(camera), mode, flip_y), camera.width, camera.height, mode, points,
                             fits and self.use_points is None, self._visible if self._count else 0,
-                            internal=framebuffer is None, colour_scale=scale)
+                            internal=framebuffer is None, colour_scale=scale, cpu=cpu)
         self._job_camera, self._job_framebuffer = camera, fbo
-        if clear is not None:
+        if cpu:
+            assert self.cpu_pass is not None and self._order is not None
+            self.cpu_pass.begin(self._buffers["splats"], self._count, self._order, camera.width, camera.height,
+                                clear if clear is not None else (0.0, 0.0, 0.0, 0.0))
+        elif clear is not None:
             r, g, b, a = clear  # the colour at the target's scale (targets.py)
             fbo.clear(r * scale, g * scale, b * scale, a, viewport=(0, 0, camera.width, camera.height))
+
+    @property
+    def colour_pass(self) -> str:
+        """Where the "splats" colour pass runs: "GL", "CPU" (a software GL), or GL while the CPU pass compiles."""
+        if self.cpu_pass is None:
+            return "GL"
+        return "CPU" if cpu_splats.status() == "ready" else f"GL (CPU pass: {cpu_splats.status()})"
 
     @property
     def drawing(self) -> bool:
@@ -432,6 +442,8 @@ class SplatRenderer(AuxiliaryPasses):
     def progress(self) -> float:
         """Fraction of the unfinished image drawn (1.0 when none)."""
         job = self._job
+        if job is not None and job.cpu:
+            return cast(cpu_splats.CpuColourPass, self.cpu_pass).progress
         return 1.0 if job is None or not job.total else job.next / job.total
 
     def cancel_draw(self) -> None:
@@ -452,6 +464,13 @@ class SplatRenderer(AuxiliaryPasses):
             self.ctx.finish()
         t_start = time.perf_counter()
         last_ms = 0.0
+        if job.cpu:  # tiles on the CPU for the budget; the finished image is written into the back target
+            assert self.cpu_pass is not None
+            done = self.cpu_pass.step(budget_ms, self._targets.back_texture, job.colour_scale)
+            job.slices, job.draw_ms = job.slices + 1, job.draw_ms + (time.perf_counter() - t_start) * 1e3
+            if not done:
+                return False
+            job.next = job.total
         while job.next < job.total:
             remaining = budget_ms - (time.perf_counter() - t_start) * 1e3
             if last_ms and remaining <= 0:
@@ -485,6 +504,7 @@ class SplatRenderer(AuxiliaryPasses):
         self.last_timings["slices"] = float(job.slices)
         self.last_timings["visible"] = float(job.total)
         self.last_timings["points"] = float(job.points)
+        self.last_timings["cpu"] = float(job.cpu)
         self.last_timings["oversize"] = float(self._oversize)  # splats too large for a GL point (drawn as quads)
         if job.internal:
             self._targets.swap()

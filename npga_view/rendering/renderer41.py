@@ -33,7 +33,8 @@ from npga_core.camera.cameras import Camera
 from npga_core.model.gaussians import SH_C0, PosedGaussians, covariances, sh_degree_from_count
 from npga_core.model.sh import SH_C1, SH_C2, SH_C3
 from npga_view.rendering.lines import pack_rgba8
-from npga_view.rendering.renderer import NEAR, SplatRenderer, camera_key, load_shader
+from npga_view.rendering.renderer import NEAR, SplatRenderer, camera_key
+from npga_view.rendering.shader_source import load_shader
 from npga_view.rendering.sorting import sort_back_to_front, view_depths
 from npga_view.rendering.uniforms import mat4_bytes, uniform
 

@@ -67,6 +67,13 @@ class ImageTargets:
         back = self._targets[1]
         return 1.0 if back is None else colour_scale(back[0].dtype)
 
+    @property
+    def back_texture(self) -> moderngl.Texture:
+        """The back target's texture (after `back`)."""
+        back = self._targets[1]
+        assert back is not None
+        return back[0]
+
     def swap(self) -> None:
         self._targets[0], self._targets[1] = self._targets[1], self._targets[0]
 

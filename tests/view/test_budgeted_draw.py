@@ -19,6 +19,12 @@ from npga_view.rendering.scheduler import FIRST_SCALE, REFINE_BUDGETS, DrawSched
 from tests.support.render import accumulated
 
 
+def gl_colour_pass(gl_path: str) -> None:
+    """Skip a test of the GL colour pass's points and quads where the colour pass runs on the CPU."""
+    if gl_path == "cpu":
+        pytest.skip("points and quads are the GL colour pass's; the CPU pass draws each ellipse's spans")
+
+
 @pytest.fixture(scope="module")
 def posed() -> PosedGaussians:
     return make_synthetic_avatar(6000, seed=11).pose()
@@ -32,7 +38,8 @@ def renderer(make_renderer, posed):
     r.release()
 
 
-def test_points_path_equals_quads(renderer, posed):
+def test_points_path_equals_quads(renderer, posed, gl_path):
+    gl_colour_pass(gl_path)
     cam = frame_points(posed.means, 160, 140)
     renderer.use_points = False
     quads = renderer.render(cam)
@@ -45,6 +52,7 @@ def test_points_path_equals_quads(renderer, posed):
 
 
 def test_points_of_turned_elongated_splats_equal_quads(make_renderer, gl_path):
+    gl_colour_pass(gl_path)
     """A GL point holds the bounding box of a splat's ellipse, not of its quad (splat_common.glsl point_side):
     thin opaque splats turned 0-90 degrees in the image, drawn as points, keep every pixel of the quad path, on
     both GL paths; the side is that of the ellipse's box (at 45 degrees 15 % smaller than the quad's box here)."""
@@ -305,6 +313,7 @@ def test_a_still_views_cheap_first_image_is_kept_through_its_frames(renderer, po
 
 
 def test_points_equal_quads_at_any_subpixel_position(make_renderer, gl_path):
+    gl_colour_pass(gl_path)
     """A point's square is the ellipse's box plus POINT_MARGIN (0.05 px, splat_common.glsl): small and large,
     round and thin splats at random sub-pixel positions, opacities near 1/255 (a box of almost nothing) and near
     1, drawn as points keep exactly the quad path's pixels, on both GL paths."""

@@ -29,7 +29,7 @@ def test_unmeasured_sizes_follow_the_prior_then_the_cheaper_path():
 
 def test_renderer_measures_both_paths_and_keeps_the_image(ctx):
     posed = make_synthetic_avatar(4000, seed=21).pose()
-    r = SplatRenderer(ctx, 64, 64)
+    r = SplatRenderer(ctx, 64, 64, cpu_colour=False)  # the GL colour pass's two paths
     try:
         r.set_gaussians(posed)
         cam = frame_points(posed.means, 200, 180)

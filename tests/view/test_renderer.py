@@ -380,7 +380,7 @@ from npga_view.rendering.gl import create_headless_context
 from npga_view.rendering.renderer import SplatRenderer
 from tests.support.render import off_centre_camera, random_cloud
 ctx = create_headless_context()
-r = SplatRenderer(ctx, 160, 120)
+r = SplatRenderer(ctx, 160, 120, cpu_colour=False)  # llvmpipe's own threads (the CPU pass: test_cpu_splats.py)
 r.set_gaussians(random_cloud(3000, seed=21))
 cam = off_centre_camera((0.1, 0.0, 3.0)).resized(384, 320)  # 6 x 5 tiles of 64 pixels among the threads
 print(os.environ["LP_NUM_THREADS"], hashlib.sha256(r.render(cam).tobytes()).hexdigest())

@@ -1,0 +1,199 @@
+"""The "splats" colour pass on the CPU, where the OpenGL is a software renderer (Mesa's llvmpipe).
+
+llvmpipe draws a splat as a generic GL primitive: it rasterises the square around the ellipse in 4x4 blocks and runs
+the compiled fragment program on each (the demo at 1360x900: 38 M pixels of points for 17.7 M inside the ellipses;
+docs/PERFORMANCE.md). Here the same splats (the GL pre-pass's output, read back) are binned into 64-pixel tiles in
+draw order and each tile is blended by one thread on the CPU over exactly its ellipses' row spans, with the Gaussian
+as a vectorised polynomial (`cpu_kernels.py`, numba). The image equals the GL pass's within the 16-bit target's
+rounding and is written into the renderer's colour target, so everything after it (present, read-back, the CNN,
+lines) is unchanged. A GPU's GL is left to draw: this module is used only on a software GL.
+
+The kernels are compiled once per machine into numba's cache by a helper process started with the first renderer
+(`warm_up`): compiling takes seconds of Python work, which would stall the window's frames; until the cache is
+there, images are drawn by GL. A process that finds the cache loads it in ~0.3 s.
+"""
+
+from __future__ import annotations
+
+import math
+import multiprocessing as mp
+import os
+import threading
+import time
+
+import moderngl
+import numpy as np
+
+#: Tile side in pixels: a tile's four float planes (64 KiB) stay in the CPU's cache while its splats are blended
+TILE = 64
+#: Parallel chunks per numba thread (tiles are interleaved over chunks, so uneven tiles balance)
+CHUNKS_PER_THREAD = 4
+#: ms per unit of predicted work (a pixel of a splat's ellipse) before the first image measures it
+PRIOR_MS_PER_WORK = 8e-6
+#: GL_RENDERER names of software OpenGL implementations
+SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast", "swiftshader", "software rasterizer")
+#: NPGA_CPU_SPLATS=0 keeps the GL colour pass on a software GL; 1 uses the CPU pass on any GL
+ENV = "NPGA_CPU_SPLATS"
+
+_lock = threading.Lock()  # one caller of the parallel kernels at a time (numba's thread pools are per process)
+_state = {"status": "off", "error": ""}  # off, warming, loading, ready, failed
+_kernels = None
+
+
+def wanted(renderer_name: str) -> bool:
+    """Whether a renderer on GL `renderer_name` should draw its colour pass on the CPU ($NPGA_CPU_SPLATS wins)."""
+    env = os.environ.get(ENV, "").strip()
+    if env in ("0", "1"):
+        return env == "1"
+    name = renderer_name.lower()
+    return any(s in name for s in SOFTWARE_GL)
+
+
+def _compile_in_child(parent_pid: int) -> None:
+    """Helper process: compile the kernels into numba's cache (or find them there), then exit."""
+    from npga_core.posing.lifetime import start_parent_watch
+
+    start_parent_watch(parent_pid, [])
+    _load()
+
+
+def _load():
+    """Import and run the kernels once on a tiny image (compiling them, or loading numba's cache)."""
+    from npga_view.rendering import cpu_kernels as k
+
+    sp = np.zeros((1, 16), np.float32)
+    sp[0, [0, 1, 3, 8, 10]] = 1.0, 1.0, 0.5, 1.0, 1.0
+    planes = np.zeros((4, 2, 2), np.float32)
+    starts, lists, _ = k.bin_tiles(np.zeros(1, np.uint32), sp, 2, 2, TILE)
+    k.draw_tiles(np.zeros(1, np.int32), 1, starts, lists, sp, planes, np.zeros(4, np.float32), TILE)
+    k.pack_unorm16(planes, np.zeros((2, 2, 4), np.uint16), 0.5)
+    k.pack_float(planes, np.zeros((2, 2, 4), np.float32), 1.0)
+    return k
+
+
+def _warm() -> None:
+    global _kernels
+    try:
+        proc = mp.get_context("spawn").Process(target=_compile_in_child, args=(os.getpid(),), daemon=True,
+                                               name="npga-cpu-splats-compile")
+        proc.start()
+        proc.join()
+        _state["status"] = "loading"
+        with _lock:
+            _kernels = _load()
+        _state["status"] = "ready"
+    except Exception as e:  # numba missing or refusing this machine: the GL pass stays
+        _state.update(status="failed", error=f"{type(e).__name__}: {e}")
+
+
+def warm_up(wait: bool = False) -> bool:
+    """Start compiling (first call) and say whether the kernels are ready; `wait` blocks until they are (tests,
+    offline images)."""
+    if _state["status"] == "off":
+        if wait:
+            _state["status"] = "loading"
+            try:
+                global _kernels
+                with _lock:
+                    _kernels = _load()
+                _state["status"] = "ready"
+            except Exception as e:
+                _state.update(status="failed", error=f"{type(e).__name__}: {e}")
+        else:
+            _state["status"] = "warming"
+            threading.Thread(target=_warm, name="npga-cpu-splats-warm", daemon=True).start()
+    while wait and _state["status"] in ("warming", "loading"):
+        time.sleep(0.02)
+    return _state["status"] == "ready"
+
+
+def status() -> str:
+    """off, warming, loading, ready or failed (with the reason)."""
+    s = _state["status"]
+    return f"failed ({_state['error']})" if s == "failed" else s
+
+
+class CpuColourPass:
+    """One image at a time: `begin` bins the splats, `step` blends tiles within a time budget, `pixels` packs the
+    finished image for the colour target."""
+
+    def __init__(self) -> None:
+        self._planes: np.ndarray | None = None
+        self._packed: dict[str, np.ndarray] = {}
+        self.ms_per_work = PRIOR_MS_PER_WORK
+        self._tiles = np.zeros(0, np.int32)
+        self._work = np.zeros(0)
+        self._next = 0
+        self._bins: tuple | None = None
+        self._sp: np.ndarray | None = None  # the pre-pass's splats, read back
+        self._key: object = None
+        self._clear = np.zeros(4, np.float32)
+
+    @property
+    def progress(self) -> float:
+        """Fraction of the image's predicted work done."""
+        total = float(self._work.sum()) if len(self._work) else 0.0
+        return 1.0 if total <= 0 else float(self._work[: self._next].sum()) / total
+
+    def begin(self, buffer: moderngl.Buffer, count: int, order: np.ndarray, width: int, height: int,
+              clear: tuple[float, float, float, float]) -> None:
+        """Start an image of `width` x `height` from the pre-pass's `count` splats in `buffer`, drawn in `order` (the
+        pre-pass's own array: its splats are read back once per pre-pass), on a target cleared to `clear`."""
+        k = _kernels
+        assert k is not None, "warm_up() first"
+        if self._sp is None or self._sp.shape[0] != count or self._key is not order:
+            if self._sp is None or self._sp.shape[0] != count:
+                self._sp = np.empty((count, 16), np.float32)
+            buffer.read_into(self._sp, size=count * 64)
+            self._key = order
+        with _lock:
+            starts, lists, work = k.bin_tiles(np.ascontiguousarray(order, np.uint32), self._sp, width, height, TILE)
+        if self._planes is None or self._planes.shape[1:] != (height, width):
+            self._planes, self._packed = np.empty((4, height, width), np.float32), {}
+        self._bins = (starts, lists)
+        self._tiles = np.arange(len(work), dtype=np.int32)
+        self._work, self._next = work, 0
+        self._clear = np.asarray(clear, np.float32).reshape(4)
+
+    def step(self, budget_ms: float, texture: moderngl.Texture, scale: float) -> bool:
+        """Blend tiles for about `budget_ms` (at least one batch); when the image is finished, write it into
+        `texture` (as the GL pass would have drawn it: colour times `scale`) and return True."""
+        k, bins, planes = _kernels, self._bins, self._planes
+        assert k is not None and bins is not None and planes is not None
+        n = len(self._tiles)
+        end = n
+        if math.isfinite(budget_ms) and self._next < n:
+            predicted = np.cumsum(self._work[self._next:]) * self.ms_per_work
+            end = self._next + max(1, int(np.searchsorted(predicted, budget_ms, side="right")))
+        if self._next < end:
+            with _lock:
+                chunks = CHUNKS_PER_THREAD * k.nb.get_num_threads()
+                t0 = time.perf_counter()
+                k.draw_tiles(self._tiles[self._next:end], chunks, bins[0], bins[1], self._sp, planes, self._clear,
+                             TILE)
+                ms = (time.perf_counter() - t0) * 1e3
+            work = float(self._work[self._next:end].sum())
+            if work > 0 and ms > 0:  # a running average of the machine's rate, images and slices alike
+                self.ms_per_work = 0.5 * self.ms_per_work + 0.5 * ms / work
+            self._next = end
+        if end < n:
+            return False
+        texture.write(self.pixels(texture.dtype, scale))
+        return True
+
+    def pixels(self, dtype: str, scale: float) -> np.ndarray:
+        """The finished image as a colour target of `dtype` stores it: (H, W, 4) uint16 for "nu2" (colour times
+        `scale`, clamped to [0, 1]) or float32, rows as drawn."""
+        k, planes = _kernels, self._planes
+        assert k is not None and planes is not None
+        _, height, width = planes.shape
+        out = self._packed.get(dtype)
+        if out is None:
+            out = self._packed[dtype] = np.empty((height, width, 4), np.uint16 if dtype == "nu2" else np.float32)
+        with _lock:
+            (k.pack_unorm16 if dtype == "nu2" else k.pack_float)(planes, out, scale)
+        return out
+
+    def release(self) -> None:
+        """Drop the image and its buffers."""
+        self._planes, self._packed, self._bins, self._sp, self._key = None, {}, None, None, None
