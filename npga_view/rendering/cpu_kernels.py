@@ -17,6 +17,10 @@ import math
 import numba as nb
 import numpy as np
 
+#: Tile side in pixels (a power of two: tiles are found by shifts, integer division being slow per splat); a
+#: tile's four float planes (64 KiB) stay in the CPU's cache while its splats are blended
+TILE_SHIFT = 6
+TILE = 1 << TILE_SHIFT
 MIN_ALPHA = 1.0 / 255.0
 MAX_ALPHA = 0.99
 #: A tile's predicted work: its pixel-splat pairs' pixels plus this many pixels' worth per pair (the row set-up)
@@ -49,41 +53,53 @@ def _pixels(lo: float, hi: float, first: int, last: int) -> tuple[int, int]:
     return (int(max(math.ceil(lo - 0.5), float(first))), int(min(math.floor(hi - 0.5), float(last))))
 
 
-@nb.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
-def bin_tiles(order: np.ndarray, sp: np.ndarray, width: int, height: int, tile: int):
-    """Splat indices per tile, in draw order (back to front): (starts (T + 1,), lists, work (T,)). Tiles are
-    row-major, `tile` pixels square; a splat goes to every tile its ellipse's bounding box touches."""
-    tx_n = (width + tile - 1) // tile
-    ty_n = (height + tile - 1) // tile
-    n = order.shape[0]
-    box = np.empty((n, 4), np.int32)
-    counts = np.zeros(tx_n * ty_n + 1, np.int64)
-    work = np.full(tx_n * ty_n, CLEAR_WORK * tile * tile, np.float64)  # every tile is cleared
-    for k in range(n):
-        i = order[k]
-        box[k, 0], box[k, 1] = 0, -1  # no tile unless set below
+@nb.njit(cache=True, nogil=True, parallel=True, fastmath=True, error_model="numpy")
+def pixel_boxes(order: np.ndarray, sp: np.ndarray, width: int, height: int) -> np.ndarray:
+    """The pixel box (x0, x1, y0, y1) in the image of each splat in `order`, in that order (x1 < x0 where it covers
+    nothing): read in sequence by `bin_tiles`."""
+    n = sp.shape[0]
+    by_index = np.empty((n, 4), np.int32)  # computed in index order (the splats read in sequence), then gathered
+    for i in nb.prange(n):
         L, det, ry, rx, a, b = _ellipse(sp, i)
-        if not L > 0.0:
-            continue
-        x0, x1 = _pixels(sp[i, 0] - rx, sp[i, 0] + rx, 0, width - 1)
-        y0, y1 = _pixels(sp[i, 1] - ry, sp[i, 1] + ry, 0, height - 1)
+        by_index[i, 0], by_index[i, 1], by_index[i, 2], by_index[i, 3] = 0, -1, 0, -1
+        if L > 0.0:
+            by_index[i, 0], by_index[i, 1] = _pixels(sp[i, 0] - rx, sp[i, 0] + rx, 0, width - 1)
+            by_index[i, 2], by_index[i, 3] = _pixels(sp[i, 1] - ry, sp[i, 1] + ry, 0, height - 1)
+    box = np.empty((order.shape[0], 4), np.int32)
+    for k in nb.prange(order.shape[0]):
+        for j in range(4):
+            box[k, j] = by_index[order[k], j]
+    return box
+
+
+@nb.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
+def bin_tiles(order: np.ndarray, box: np.ndarray, width: int, height: int):
+    """Splat indices per tile, in draw order (back to front): (starts (T + 1,), lists, work (T,)). Tiles are
+    row-major, `TILE` pixels square; a splat goes to every tile its ellipse's pixel box (`box`, from `pixel_boxes`
+    in the same order) touches."""
+    tx_n = (width + TILE - 1) >> TILE_SHIFT
+    ty_n = (height + TILE - 1) >> TILE_SHIFT
+    counts = np.zeros(tx_n * ty_n + 1, np.int64)
+    work = np.full(tx_n * ty_n, CLEAR_WORK * TILE * TILE, np.float64)  # every tile is cleared
+    for k in range(order.shape[0]):
+        x0, x1, y0, y1 = box[k, 0], box[k, 1], box[k, 2], box[k, 3]
         if x1 < x0 or y1 < y0:
             continue
-        box[k, 0], box[k, 1], box[k, 2], box[k, 3] = x0 // tile, x1 // tile, y0 // tile, y1 // tile
-        for ty in range(y0 // tile, y1 // tile + 1):
-            rows = min(y1, ty * tile + tile - 1) - max(y0, ty * tile) + 1
-            for tx in range(x0 // tile, x1 // tile + 1):
-                cols = min(x1, tx * tile + tile - 1) - max(x0, tx * tile) + 1
+        for ty in range(y0 >> TILE_SHIFT, (y1 >> TILE_SHIFT) + 1):
+            rows = min(y1, (ty << TILE_SHIFT) + TILE - 1) - max(y0, ty << TILE_SHIFT) + 1
+            for tx in range(x0 >> TILE_SHIFT, (x1 >> TILE_SHIFT) + 1):
+                cols = min(x1, (tx << TILE_SHIFT) + TILE - 1) - max(x0, tx << TILE_SHIFT) + 1
                 counts[ty * tx_n + tx + 1] += 1
                 work[ty * tx_n + tx] += PAIR_WORK + 0.785 * rows * cols  # the ellipse: pi/4 of its box
     starts = np.cumsum(counts)
     fill = starts[:-1].copy()
     lists = np.empty(starts[-1], np.int32)
-    for k in range(n):
-        if box[k, 1] < box[k, 0]:
+    for k in range(order.shape[0]):
+        x0, x1, y0, y1 = box[k, 0], box[k, 1], box[k, 2], box[k, 3]
+        if x1 < x0 or y1 < y0:
             continue
-        for ty in range(box[k, 2], box[k, 3] + 1):
-            for tx in range(box[k, 0], box[k, 1] + 1):
+        for ty in range(y0 >> TILE_SHIFT, (y1 >> TILE_SHIFT) + 1):
+            for tx in range(x0 >> TILE_SHIFT, (x1 >> TILE_SHIFT) + 1):
                 t = ty * tx_n + tx
                 lists[fill[t]] = order[k]
                 fill[t] += 1
@@ -92,15 +108,15 @@ def bin_tiles(order: np.ndarray, sp: np.ndarray, width: int, height: int, tile: 
 
 @nb.njit(cache=True, nogil=True, fastmath=True, error_model="numpy")
 def _draw_tile(t: int, starts: np.ndarray, lists: np.ndarray, sp: np.ndarray, planes: np.ndarray,
-               clear: np.ndarray, tile: int) -> None:
+               clear: np.ndarray) -> None:
     """Clear tile `t` of `planes` (4, H, W: premultiplied r, g, b and alpha) to `clear`, then blend its splats
     back to front ("over"), each on its ellipse's rows and spans."""
     height, width = planes.shape[1], planes.shape[2]
-    tx_n = (width + tile - 1) // tile
-    ty0 = (t // tx_n) * tile
-    tx0 = (t % tx_n) * tile
-    ty1 = min(ty0 + tile, height) - 1
-    tx1 = min(tx0 + tile, width) - 1
+    tx_n = (width + TILE - 1) >> TILE_SHIFT
+    ty0 = (t // tx_n) << TILE_SHIFT
+    tx0 = (t % tx_n) << TILE_SHIFT
+    ty1 = min(ty0 + TILE, height) - 1
+    tx1 = min(tx0 + TILE, width) - 1
     for ch in range(4):
         planes[ch, ty0:ty1 + 1, tx0:tx1 + 1] = clear[ch]
     for j in range(starts[t], starts[t + 1]):
@@ -150,12 +166,12 @@ def _draw_tile(t: int, starts: np.ndarray, lists: np.ndarray, sp: np.ndarray, pl
 
 @nb.njit(cache=True, nogil=True, parallel=True, fastmath=True, error_model="numpy")
 def draw_tiles(tiles: np.ndarray, chunks: int, starts: np.ndarray, lists: np.ndarray, sp: np.ndarray,
-               planes: np.ndarray, clear: np.ndarray, tile: int) -> None:
+               planes: np.ndarray, clear: np.ndarray) -> None:
     """Draw the tiles `tiles` (indices), interleaved over `chunks` parallel chunks (a tile is drawn whole by one
     thread, so tiles need no locks)."""
     for ch in nb.prange(chunks):
         for k in range(ch, tiles.shape[0], chunks):
-            _draw_tile(tiles[k], starts, lists, sp, planes, clear, tile)
+            _draw_tile(tiles[k], starts, lists, sp, planes, clear)
 
 
 @nb.njit(cache=True, nogil=True, parallel=True, fastmath=True, error_model="numpy")

@@ -24,8 +24,6 @@ import time
 import moderngl
 import numpy as np
 
-#: Tile side in pixels: a tile's four float planes (64 KiB) stay in the CPU's cache while its splats are blended
-TILE = 64
 #: Parallel chunks per numba thread (tiles are interleaved over chunks, so uneven tiles balance)
 CHUNKS_PER_THREAD = 4
 #: ms per unit of predicted work (a pixel of a splat's ellipse) before the first image measures it
@@ -64,8 +62,9 @@ def _load():
     sp = np.zeros((1, 16), np.float32)
     sp[0, [0, 1, 3, 8, 10]] = 1.0, 1.0, 0.5, 1.0, 1.0
     planes = np.zeros((4, 2, 2), np.float32)
-    starts, lists, _ = k.bin_tiles(np.zeros(1, np.uint32), sp, 2, 2, TILE)
-    k.draw_tiles(np.zeros(1, np.int32), 1, starts, lists, sp, planes, np.zeros(4, np.float32), TILE)
+    order = np.zeros(1, np.uint32)
+    starts, lists, _ = k.bin_tiles(order, k.pixel_boxes(order, sp, 2, 2), 2, 2)
+    k.draw_tiles(np.zeros(1, np.int32), 1, starts, lists, sp, planes, np.zeros(4, np.float32))
     k.pack_unorm16(planes, np.zeros((2, 2, 4), np.uint16), 0.5)
     k.pack_float(planes, np.zeros((2, 2, 4), np.float32), 1.0)
     return k
@@ -127,37 +126,54 @@ class CpuColourPass:
         self._bins: tuple | None = None
         self._sp: np.ndarray | None = None  # the pre-pass's splats, read back
         self._key: object = None
+        self._source: tuple | None = None  # (buffer, count, order, width, height) of the image begun
         self._clear = np.zeros(4, np.float32)
 
     @property
     def progress(self) -> float:
         """Fraction of the image's predicted work done."""
+        if self._bins is None:
+            return 0.0
         total = float(self._work.sum()) if len(self._work) else 0.0
         return 1.0 if total <= 0 else float(self._work[: self._next].sum()) / total
 
     def begin(self, buffer: moderngl.Buffer, count: int, order: np.ndarray, width: int, height: int,
               clear: tuple[float, float, float, float]) -> None:
         """Start an image of `width` x `height` from the pre-pass's `count` splats in `buffer`, drawn in `order` (the
-        pre-pass's own array: its splats are read back once per pre-pass), on a target cleared to `clear`."""
+        pre-pass's own array: its splats are read back once per pre-pass), on a target cleared to `clear`. The
+        read-back and the binning are the first `step`'s work, within its budget."""
+        assert _kernels is not None, "warm_up() first"
+        self._source = (buffer, count, order, width, height)
+        self._bins, self._next = None, 0
+        if self._planes is None or self._planes.shape[1:] != (height, width):
+            self._planes, self._packed = np.empty((4, height, width), np.float32), {}
+        self._clear = np.asarray(clear, np.float32).reshape(4)
+
+    def _bin(self) -> None:
+        """Read the splats back (once per pre-pass) and bin them into tiles."""
         k = _kernels
-        assert k is not None, "warm_up() first"
+        assert k is not None and self._source is not None
+        buffer, count, order, width, height = self._source
         if self._sp is None or self._sp.shape[0] != count or self._key is not order:
             if self._sp is None or self._sp.shape[0] != count:
                 self._sp = np.empty((count, 16), np.float32)
             buffer.read_into(self._sp, size=count * 64)
             self._key = order
         with _lock:
-            starts, lists, work = k.bin_tiles(np.ascontiguousarray(order, np.uint32), self._sp, width, height, TILE)
-        if self._planes is None or self._planes.shape[1:] != (height, width):
-            self._planes, self._packed = np.empty((4, height, width), np.float32), {}
+            order = np.ascontiguousarray(order, np.uint32)
+            starts, lists, work = k.bin_tiles(order, k.pixel_boxes(order, self._sp, width, height), width, height)
         self._bins = (starts, lists)
         self._tiles = np.arange(len(work), dtype=np.int32)
-        self._work, self._next = work, 0
-        self._clear = np.asarray(clear, np.float32).reshape(4)
+        self._work = work
 
     def step(self, budget_ms: float, texture: moderngl.Texture, scale: float) -> bool:
-        """Blend tiles for about `budget_ms` (at least one batch); when the image is finished, write it into
-        `texture` (as the GL pass would have drawn it: colour times `scale`) and return True."""
+        """Blend tiles for about `budget_ms` (at least one batch; the first step bins the splats first); when the
+        image is finished, write it into `texture` (as the GL pass would have drawn it: colour times `scale`) and
+        return True."""
+        t_start = time.perf_counter()
+        if self._bins is None:
+            self._bin()
+            budget_ms -= (time.perf_counter() - t_start) * 1e3
         k, bins, planes = _kernels, self._bins, self._planes
         assert k is not None and bins is not None and planes is not None
         n = len(self._tiles)
@@ -169,8 +185,7 @@ class CpuColourPass:
             with _lock:
                 chunks = CHUNKS_PER_THREAD * k.nb.get_num_threads()
                 t0 = time.perf_counter()
-                k.draw_tiles(self._tiles[self._next:end], chunks, bins[0], bins[1], self._sp, planes, self._clear,
-                             TILE)
+                k.draw_tiles(self._tiles[self._next:end], chunks, bins[0], bins[1], self._sp, planes, self._clear)
                 ms = (time.perf_counter() - t0) * 1e3
             work = float(self._work[self._next:end].sum())
             if work > 0 and ms > 0:  # a running average of the machine's rate, images and slices alike
@@ -196,4 +211,4 @@ class CpuColourPass:
 
     def release(self) -> None:
         """Drop the image and its buffers."""
-        self._planes, self._packed, self._bins, self._sp, self._key = None, {}, None, None, None
+        self._planes, self._packed, self._bins, self._sp, self._key, self._source = None, {}, None, None, None, None
