@@ -8,9 +8,10 @@ as a vectorised polynomial (`cpu_kernels.py`, numba). The image equals the GL pa
 rounding and is written into the renderer's colour target, so everything after it (present, read-back, the CNN,
 lines) is unchanged. A GPU's GL is left to draw: this module is used only on a software GL.
 
-The kernels are compiled once per machine into numba's cache by a helper process started with the first renderer
-(`warm_up`): compiling takes seconds of Python work, which would stall the window's frames; until the cache is
-there, images are drawn by GL. A process that finds the cache loads it in ~0.3 s.
+The kernels are compiled once per machine into numba's cache by a helper process, started when a renderer has
+finished its first image (`warm_up`, so after the window's first pixels): compiling takes seconds of Python work,
+which would stall the window's frames. Until the kernels are loaded, images are drawn by GL; a process that finds
+the cache loads them in ~0.3 s.
 """
 
 from __future__ import annotations
@@ -103,6 +104,11 @@ def warm_up(wait: bool = False) -> bool:
             threading.Thread(target=_warm, name="npga-cpu-splats-warm", daemon=True).start()
     while wait and _state["status"] in ("warming", "loading"):
         time.sleep(0.02)
+    return _state["status"] == "ready"
+
+
+def ready() -> bool:
+    """The kernels are loaded (`warm_up` was called and has finished)."""
     return _state["status"] == "ready"
 
 

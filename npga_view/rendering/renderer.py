@@ -182,8 +182,6 @@ class SplatRenderer(AuxiliaryPasses):
         on = self._preprocess is not None and cpu_colour
         #: the "splats" colour pass on the CPU (a software GL: cpu_splats.py), used once compiled
         self.cpu_pass: cpu_splats.CpuColourPass | None = cpu_splats.CpuColourPass() if on else None
-        if on:
-            cpu_splats.warm_up()  # compiled by a helper process; the GL pass draws until the kernels are ready
         self._order: np.ndarray | None = None  # the sorted order of the current pre-pass
 
     # --- resources -----------------------------------------------------------------------------
@@ -411,7 +409,7 @@ class SplatRenderer(AuxiliaryPasses):
                                                                              mode == "depth" or self.precise_colour)
         scale = 1.0 if framebuffer is not None else self._targets.back_scale
         cpu = (self.cpu_pass is not None and self.style == "splats" and mode != "depth" and framebuffer is None
-               and self._count > 0 and cpu_splats.warm_up())
+               and self._count > 0 and cpu_splats.ready())
         fits = not cpu and self.style == "splats" and self._oversize == 0 and self.use_points is not False
         points = fits and (self.use_points or self.path_costs.choose(camera.width, camera.height))
         self._job = DrawJob((*camera_key(camera), mode, flip_y), camera.width, camera.height, mode, points,
@@ -509,6 +507,8 @@ class SplatRenderer(AuxiliaryPasses):
         if job.internal:
             self._targets.swap()
         self._job = None
+        if self.cpu_pass is not None:  # compiled by a helper process after the first image (GL draws until then)
+            cpu_splats.warm_up()
         return True
 
     def _draw_slice(self, job: DrawJob, camera: Camera, fbo: moderngl.Framebuffer, first: int, count: int) -> None:
