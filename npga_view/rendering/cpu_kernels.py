@@ -13,9 +13,17 @@ least 1/255: an ellipse, whose span on each row is computed in closed form, so t
 from __future__ import annotations
 
 import math
+import os
 
-import numba as nb
-import numpy as np
+from npga_view.rendering.gl import RASTER_THREADS_PER_CPU, usable_cpus
+
+# Two threads per usable CPU unless the person set NUMBA_NUM_THREADS (read when numba is imported), as llvmpipe's
+# rasterizer threads (gl.prefer_raster_threads): beside two busy processes on 2 cores the demo's full-resolution
+# image took 231-259 ms with 4 threads against 289-307 ms with 2; idle, the same (docs/PERFORMANCE.md)
+os.environ.setdefault("NUMBA_NUM_THREADS", str(RASTER_THREADS_PER_CPU * usable_cpus()))
+
+import numba as nb  # noqa: E402
+import numpy as np  # noqa: E402
 
 #: Tile side in pixels (a power of two: tiles are found by shifts, integer division being slow per splat); a
 #: tile's four float planes (64 KiB) stay in the CPU's cache while its splats are blended

@@ -118,13 +118,16 @@ def prefer_raster_threads() -> None:
     draw of the demo took 283 ms with 4 threads against 361-370 ms with llvmpipe's default of 2 (its threads get a
     larger share of the CPUs, and a thread descheduled in its last tile holds up fewer pixels); idle, the same
     (docs/PERFORMANCE.md). Read when the driver is loaded: call before the process's first GL context."""
-    if "LP_NUM_THREADS" in os.environ:
-        return
+    if "LP_NUM_THREADS" not in os.environ:
+        os.environ["LP_NUM_THREADS"] = str(RASTER_THREADS_PER_CPU * usable_cpus())
+
+
+def usable_cpus() -> int:
+    """CPUs this process may run on."""
     try:
-        cpus = len(os.sched_getaffinity(0))
+        return len(os.sched_getaffinity(0))
     except (AttributeError, OSError):  # (macOS, Windows)
-        cpus = os.cpu_count() or 1
-    os.environ["LP_NUM_THREADS"] = str(RASTER_THREADS_PER_CPU * cpus)
+        return os.cpu_count() or 1
 
 
 def _check_version(ctx: moderngl.Context, backend: str) -> moderngl.Context:
