@@ -88,7 +88,6 @@ class ViewFrame:
             self.screen.upload_pending()
         if draws.frame(cam, st.mode, self.doc.version, interacting, exact_content=self.poses.exact):
             t = draws.shown_renderer.last_timings
-            info.renderer_path = f"{draws.shown_renderer.path}, colour pass on {draws.shown_renderer.colour_pass}"
             info.timings.update({k: t[k] for k in ("sort", "upload", "preprocess", "draw") if k in t})
             info.merged_splats = draws.shown_merged
             if not info.merged_splats:  # (a merged cloud's count is not the number of the avatar's in view)
@@ -96,6 +95,7 @@ class ViewFrame:
             self.screen.inspection.due = True
             self.poses.presented(draws.shown_version)
         info.draw_scale, info.image_status = draws.scale, draws.status
+        info.renderer_path = f"{draws.shown_renderer.path}, colour pass on {draws.shown_renderer.colour_pass}"
         info.image_ms, info.draw_progress = draws.last_image_ms, draws.progress
         self.screen.update_figures(cam, interacting)
         viewport, background = self.viewport(), st.background
