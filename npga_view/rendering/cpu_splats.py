@@ -71,14 +71,11 @@ def _load():
     return k
 
 
-def _warm() -> None:
+def _load_here() -> None:
+    """Load the kernels into this process (from numba's cache, or compiling them) and set the state."""
     global _kernels
+    _state["status"] = "loading"
     try:
-        proc = mp.get_context("spawn").Process(target=_compile_in_child, args=(os.getpid(),), daemon=True,
-                                               name="npga-cpu-splats-compile")
-        proc.start()
-        proc.join()
-        _state["status"] = "loading"
         with _lock:
             _kernels = _load()
         _state["status"] = "ready"
@@ -86,19 +83,25 @@ def _warm() -> None:
         _state.update(status="failed", error=f"{type(e).__name__}: {e}")
 
 
+def _warm() -> None:
+    """Thread: compile in a helper process (this process's frames go on meanwhile), then load the cache here."""
+    try:
+        proc = mp.get_context("spawn").Process(target=_compile_in_child, args=(os.getpid(),), daemon=True,
+                                               name="npga-cpu-splats-compile")
+        proc.start()
+        proc.join()
+    except Exception as e:
+        _state.update(status="failed", error=f"{type(e).__name__}: {e}")
+        return
+    _load_here()
+
+
 def warm_up(wait: bool = False) -> bool:
     """Start compiling (first call) and say whether the kernels are ready; `wait` blocks until they are (tests,
     offline images)."""
     if _state["status"] == "off":
         if wait:
-            _state["status"] = "loading"
-            try:
-                global _kernels
-                with _lock:
-                    _kernels = _load()
-                _state["status"] = "ready"
-            except Exception as e:
-                _state.update(status="failed", error=f"{type(e).__name__}: {e}")
+            _load_here()
         else:
             _state["status"] = "warming"
             threading.Thread(target=_warm, name="npga-cpu-splats-warm", daemon=True).start()
@@ -160,9 +163,9 @@ class CpuColourPass:
         k = _kernels
         assert k is not None and self._source is not None
         buffer, count, order, width, height = self._source
-        if self._sp is None or self._sp.shape[0] != count or self._key is not order:
-            if self._sp is None or self._sp.shape[0] != count:
-                self._sp = np.empty((count, 16), np.float32)
+        if self._sp is None or self._sp.shape[0] != count:
+            self._sp, self._key = np.empty((count, 16), np.float32), None
+        if self._key is not order:
             buffer.read_into(self._sp, size=count * 64)
             self._key = order
         with _lock:
