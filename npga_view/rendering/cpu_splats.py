@@ -29,6 +29,12 @@ import numpy as np
 CHUNKS_PER_THREAD = 4
 #: ms per unit of predicted work (a pixel of a splat's ellipse) before the first image measures it
 PRIOR_MS_PER_WORK = 8e-6
+#: batches shorter than this (ms) do not move the measured rate: their time is mostly waking the threads (or a
+#: preempted thread), and a 1-tile batch of 11 ms once raised the rate 500-fold, so that the next images of the
+#: merged live cloud were drawn a few tiles per UI frame (110-150 ms per image where 30 ms of work was left)
+RATE_MIN_MS = 2.0
+#: the measured rate moves by at most these factors per batch
+RATE_STEP = (0.5, 2.0)
 #: GL_RENDERER names of software OpenGL implementations
 SOFTWARE_GL = ("llvmpipe", "softpipe", "swrast", "swiftshader", "software rasterizer")
 #: NPGA_CPU_SPLATS=0 keeps the GL colour pass on a software GL; 1 uses the CPU pass on any GL
@@ -183,22 +189,29 @@ class CpuColourPass:
         if self._bins is None:
             self._bin()
             budget_ms -= (time.perf_counter() - t_start) * 1e3
+            if budget_ms <= 0:  # the binning was this step's progress: the tiles begin with the next budget
+                return False
         k, bins, planes = _kernels, self._bins, self._planes
         assert k is not None and bins is not None and planes is not None
         n = len(self._tiles)
         end = n
+        threads = k.nb.get_num_threads()
         if math.isfinite(budget_ms) and self._next < n:
             predicted = np.cumsum(self._work[self._next:]) * self.ms_per_work
-            end = self._next + max(1, int(np.searchsorted(predicted, budget_ms, side="right")))
+            # at least a tile per thread (fewer leave threads idle for the same wake-up)
+            end = self._next + max(threads, int(np.searchsorted(predicted, budget_ms, side="right")))
+            end = min(end, n)
         if self._next < end:
             with _lock:
-                chunks = CHUNKS_PER_THREAD * k.nb.get_num_threads()
                 t0 = time.perf_counter()
-                k.draw_tiles(self._tiles[self._next:end], chunks, bins[0], bins[1], self._sp, planes, self._clear)
+                k.draw_tiles(self._tiles[self._next:end], CHUNKS_PER_THREAD * threads, bins[0], bins[1], self._sp,
+                             planes, self._clear)
                 ms = (time.perf_counter() - t0) * 1e3
             work = float(self._work[self._next:end].sum())
-            if work > 0 and ms > 0:  # a running average of the machine's rate, images and slices alike
-                self.ms_per_work = 0.5 * self.ms_per_work + 0.5 * ms / work
+            if work > 0 and ms >= RATE_MIN_MS:  # a damped running average of the machine's rate
+                lo, hi = RATE_STEP
+                rate = min(hi * self.ms_per_work, max(lo * self.ms_per_work, ms / work))
+                self.ms_per_work = 0.5 * self.ms_per_work + 0.5 * rate
             self._next = end
         if end < n:
             return False

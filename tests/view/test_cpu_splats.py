@@ -121,9 +121,37 @@ def test_a_budgeted_image_is_the_whole_image_in_slices(pair):
     progress = []
     while not r.continue_draw(0.0):
         progress.append(r.progress)
-    assert len(progress) >= 3 and progress == sorted(progress) and progress[0] > 0.0 and progress[-1] < 1.0
+    # the first slice bins the splats (no budget left for tiles), then every slice blends tiles
+    assert len(progress) >= 3 and progress[0] == 0.0 and progress[-1] < 1.0
+    assert all(b > a for a, b in zip(progress, progress[1:], strict=False))
     assert r.last_timings["cpu"] == 1.0 and r.last_timings["slices"] >= 4
     np.testing.assert_array_equal(r.front_rgba(), whole)
+
+
+def test_a_slow_small_batch_does_not_shrink_the_next_slices(pair, monkeypatch):
+    """A batch of a few tiles that takes long (the threads woken late, a preempted thread) moves the measured rate
+    by at most `RATE_STEP` (a 1-tile batch of 11 ms once raised it 500-fold: the next images came a few tiles per UI
+    frame)."""
+    import time
+
+    from npga_view.rendering import cpu_kernels
+
+    _, r = pair
+    g = make_synthetic_avatar(6000, seed=4).pose()
+    cam = frame_points(g.means, 512, 448, direction="front")
+    r.set_gaussians(g)
+    r.begin_draw(cam)
+    cpu = r.cpu_pass
+    real = cpu_kernels.draw_tiles
+    monkeypatch.setattr(cpu_kernels, "draw_tiles", lambda *a: (time.sleep(0.011), real(*a))[1])
+    assert not r.continue_draw(0.0)  # the binning only
+    before = cpu.ms_per_work
+    assert not r.continue_draw(0.0)  # the smallest batch (a tile per thread), 11 ms late
+    lo, hi = cpu_splats.RATE_STEP
+    assert before * lo <= cpu.ms_per_work <= before * hi
+    assert 0.0 < cpu.progress < 1.0
+    while not r.continue_draw(50.0):
+        pass
 
 
 def test_the_image_does_not_depend_on_the_threads(pair):
