@@ -87,7 +87,8 @@ class ViewerApp:
         codes = SequenceCodes(self.state, lambda: self.doc.sequence)
         self.bakes = BakeController(self.state, lambda: self.doc.engine, codes)
         self.live = LiveLinkController(self, wake=glfw.post_empty_event)  # its code comes before keyframes
-        self.poses = PoseController(self, codes, self.bakes, keyframe_code=self.live.code_or(self.edits.keyframe_code))
+        self.poses = PoseController(self, codes, self.bakes, keyframe_code=self.live.code_or(self.edits.keyframe_code),
+                                    taken_version=lambda: self.draws.taken_version)
         self.recorder = Recorder(lambda: self.read_window(viewport_only=True))
         self.actions = ActionController(self, self.poses, self.bakes,
                                         lambda: self.recorder.toggle_reported(self._viewport()[2:], self.state.report))

@@ -23,13 +23,20 @@ from npga_view.controllers.sequence_codes import SequenceCodes
 from npga_view.display import AppInfo
 from npga_view.document import AvatarOpened, CloudChanged, SequenceChanged, Subscriptions
 
+#: the longest real-time playback holds its next request back for the view (`PoseController._hold`)
+HOLD_S = 0.5
+
 
 class PoseController:
     """Owned by the app; `update(dt)` runs once per UI frame. See the module docstring."""
 
     def __init__(self, host: ViewerHost, sequence_codes: SequenceCodes, bakes: BakeController,
-                 keyframe_code: Callable[[], np.ndarray | None], playback_previews: bool = True):
+                 keyframe_code: Callable[[], np.ndarray | None], playback_previews: bool = True,
+                 taken_version: Callable[[], int] | None = None):
         self.host = host
+        #: the newest content version the view has put into an image (drawn or being drawn); real-time playback
+        #: asks for its next frame only once the last pose is in one (`_hold`)
+        self.taken_version = taken_version
         self.playback_previews = playback_previews  # real-time playback may show previews to keep the clock
         self.canonical_first = True  # show the canonical cloud at once when an avatar opens, until its first pose
         self.seq_codes = sequence_codes
@@ -40,6 +47,8 @@ class PoseController:
         self.playback: Playback | None = None  # the open sequence's clock (None without a sequence)
         self.frame = 0  # the sequence frame the clock is on
         self.timings: dict[str, float] = {}  # the worker's last F and G times, ms
+        self._asked_at = 0.0  # when the last request was sent (perf_counter)
+        self.held = 0  # UI frames in which playback held its next request back (`_hold`)
         self.reset()
 
     def reset(self) -> None:
@@ -170,7 +179,8 @@ class PoseController:
         if eng is None:
             return
         following = self.following()
-        if code is not None and (self.requested is None or not np.array_equal(code, self.requested)):
+        if code is not None and (self.requested is None or not np.array_equal(code, self.requested)) \
+                and not self._hold(following):
             tl = host.state.timeline
             if following and self.requested_frame is not None and self.bakes.usable(self.seq_codes.key()):
                 req = eng.request_frame(self.requested_frame)
@@ -179,6 +189,7 @@ class PoseController:
                 exact_only = following and ((tl.playing and tl.every_frame) or not self.playback_previews)
                 req = eng.request(code, mode="exact" if exact_only else "auto")
             self.requested = code.copy()
+            self._asked_at = time.perf_counter()
             self._frame_of_request[req] = self.requested_frame if following else None
         elif following and code is not None and self.shown_frame != self.requested_frame \
                 and eng.pending is None and self.shown_code is not None and np.array_equal(code, self.shown_code):
@@ -191,6 +202,20 @@ class PoseController:
         if eng.last_error:
             host.state.report(eng.last_error)
             eng.last_error = None
+
+    def _hold(self, following: bool) -> bool:
+        """Real-time playback waits with its next request while the last one is unanswered or its pose is not in
+        an image yet (at most `HOLD_S`): the view draws fewer images a second than the sequence has frames (llvmpipe:
+        8-10 of 25), and every pose asked for and not drawn took the worker's time (0.7 of 2 cores for the demo's
+        previews) and the window's (taking it) from the images. The next frame is posed while an image is drawn."""
+        tl = self.host.state.timeline
+        eng = self.host.doc.engine
+        if not (following and tl.playing and not tl.every_frame) or self.taken_version is None or eng is None \
+                or time.perf_counter() - self._asked_at > HOLD_S:
+            return False
+        held = eng.pending is not None or self.taken_version() < self.host.doc.version
+        self.held += held
+        return held
 
     def publish(self, info: AppInfo) -> None:
         """Copy what the panels show into the frame's display snapshot."""

@@ -155,6 +155,12 @@ class DrawScheduler:
         return -1 if self._shown is None else self._shown.target.version
 
     @property
+    def taken_version(self) -> int:
+        """The newest content version in an image on screen or being drawn (-1 before the first)."""
+        job = self._job
+        return max(self.shown_version, -1 if job is None else job.target.version)
+
+    @property
     def settled(self) -> bool:
         """The current view is on screen at full resolution and nothing is being drawn."""
         shown = self._shown

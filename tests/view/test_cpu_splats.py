@@ -146,7 +146,7 @@ def test_a_slow_small_batch_does_not_shrink_the_next_slices(pair, monkeypatch):
     monkeypatch.setattr(cpu_kernels, "draw_tiles", lambda *a: (time.sleep(0.011), real(*a))[1])
     assert not r.continue_draw(0.0)  # the binning only
     before = cpu.ms_per_work
-    assert not r.continue_draw(0.0)  # the smallest batch (a tile per thread), 11 ms late
+    assert not r.continue_draw(0.0)  # the smallest batch (a tile), 11 ms late
     lo, hi = cpu_splats.RATE_STEP
     assert before * lo <= cpu.ms_per_work <= before * hi
     assert 0.0 < cpu.progress < 1.0

@@ -1,0 +1,69 @@
+"""Real-time playback in the real window (Xvfb): the worker is asked for the frames the view can show, not for every
+frame the clock passes (npga_view/controllers/posing.py, `PoseController._hold`)."""
+
+from __future__ import annotations
+
+import numpy as np
+import pytest
+
+from npga_core.files.sequences import ExpressionSequence
+from tests.support.window import run_until, settle
+
+pytestmark = pytest.mark.gui
+
+
+def _play(app, avatar_path, tmp_path, fps: float) -> None:
+    assert app.open_avatar(avatar_path)
+    ex = app.avatar.expression
+    codes = np.stack([ex.from_sliders(np.array([2.5 * np.sin(i / 4.0), 2 * np.cos(i / 5.0)])) for i in range(400)])
+    path = tmp_path / "wave.npzseq"
+    ExpressionSequence(codes.astype(np.float32), fps, "wave").save(path)
+    assert app.open_sequence(str(path))
+    settle(app)
+    app.state.timeline.playing = True
+
+
+def _count_requests(app, monkeypatch) -> list[int]:
+    eng = app.engine
+    sent: list[int] = []
+    for name in ("request", "request_frame"):
+        real = getattr(eng, name)
+        monkeypatch.setattr(eng, name, lambda *a, _real=real, **k: sent.append(1) or _real(*a, **k))
+    return sent
+
+
+def test_playback_asks_for_the_frames_the_view_draws(app, avatar_path, tmp_path, monkeypatch):
+    """A view whose images take 4 UI frames (as the demo's do on llvmpipe) and a clock that passes a frame every UI
+    frame: each pose asked for reaches an image before the next is asked for (one may be on its way), instead of
+    one pose per frame of the clock, most of them never drawn."""
+    _play(app, avatar_path, tmp_path, fps=240.0)
+    real_frame, calls = app.draws.frame, [0]
+
+    def slow_frame(*a, **k):  # the scheduler works in one UI frame of four: images take four UI frames
+        calls[0] += 1
+        return real_frame(*a, **k) if calls[0] % 4 == 0 else False
+
+    monkeypatch.setattr(app.draws, "frame", slow_frame)
+    sent = _count_requests(app, monkeypatch)
+    taken: set[int] = set()
+
+    def enough() -> bool:
+        taken.add(app.draws.taken_version)
+        return len(taken) >= 12
+
+    assert run_until(app, enough, timeout=180), "playback should draw new poses"
+    assert len(sent) <= len(taken) + 2, (len(sent), len(taken))
+    assert app.poses.held > 0
+    assert app.poses.playback.skipped > 0  # (the clock ran ahead of the images: frames were skipped, not asked for)
+
+
+def test_playback_asks_again_when_the_view_takes_no_image(app, avatar_path, tmp_path, monkeypatch):
+    """A view that draws nothing (the scheduler never takes a pose) holds playback's requests back at most
+    `HOLD_S` each: the poses keep coming."""
+    from npga_view.controllers import posing
+
+    _play(app, avatar_path, tmp_path, fps=25.0)
+    monkeypatch.setattr(posing, "HOLD_S", 0.2)
+    monkeypatch.setattr(app.draws, "frame", lambda *a, **k: False)
+    sent = _count_requests(app, monkeypatch)
+    assert run_until(app, lambda: len(sent) >= 4, timeout=120), sent
