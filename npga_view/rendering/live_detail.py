@@ -29,6 +29,10 @@ from npga_core.model.gaussians import PosedGaussians
 from npga_core.model.lod import CLUSTERS, LevelOfDetail, Merge
 from npga_view.rendering.renderer import SplatRenderer
 
+#: after a merge of M ms the next one starts no sooner than REST x M ms later: while poses change continuously
+#: (playback, a stream) merges took 0.35 of the 2 cores of the machine that draws the images
+REST = 2.0
+
 
 class LiveDetail:
     """See the module docstring. `make_renderer()` creates the second renderer (on first use, in the UI thread);
@@ -52,6 +56,7 @@ class LiveDetail:
         self.shifted = False  # the renderer holds `Merge.shifted` of that version, not its merge
         self._grouping: LevelOfDetail | None = None
         self._generation = 0  # bumped by `reset`: a merge started before is thrown away
+        self._rest_until = 0.0  # the next merge starts no sooner (perf_counter)
         self._stop = False
         self._thread: threading.Thread | None = None
         self.merge_ms = 0.0  # the last merge (grouping included when it was built for it)
@@ -70,6 +75,7 @@ class LiveDetail:
             self._uploaded = -1
             self.shifted = False
             self._generation += 1
+            self._rest_until = 0.0
 
     # ----------------------------------------------------------------------------------------- output
     def usable(self) -> bool:
@@ -141,8 +147,8 @@ class LiveDetail:
     def _run(self) -> None:
         while True:
             with self._cond:
-                while self._request is None and not self._stop:
-                    self._cond.wait()
+                while not self._stop and (self._request is None or time.perf_counter() < self._rest_until):
+                    self._cond.wait(None if self._request is None else self._rest_until - time.perf_counter())
                 if self._stop:
                     return
                 request = self._request
@@ -164,5 +170,7 @@ class LiveDetail:
                 if generation != self._generation:
                     continue
                 self.merge_ms = (time.perf_counter() - t0) * 1e3
+                # the next merge waits REST times as long (poses shown meanwhile are this one shifted)
+                self._rest_until = time.perf_counter() + REST * self.merge_ms / 1e3
                 self._grouping = grouping
                 self._done = (version, merged)
