@@ -7,6 +7,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
+import numpy as np
+
 from npga_core.editing.edits import EditSession
 from npga_core.editing.keyframes import KeyframeTimeline
 from npga_core.files.sequences import ExpressionSequence
@@ -22,6 +24,7 @@ class AppInfo:
     sequence: ExpressionSequence | None = None
     frame: int = 0  # the sequence frame the playback clock is on
     presented_frame: int = 0  # the sequence frame whose image is on screen (the clock's until one is)
+    frame_sliders: np.ndarray | None = None  # the slider values of that frame while a sequence is followed
     fps: float = 0.0  # UI frames per second
     quiet: bool = False  # the window has nothing to do: its loop waits for input (the last frame's)
     frame_profile: list[str] = field(default_factory=list)  # where the UI frames' time goes (FrameProfile.lines)

@@ -49,6 +49,7 @@ class PoseController:
         self.timings: dict[str, float] = {}  # the worker's last F and G times, ms
         self._asked_at = 0.0  # when the last request was sent (perf_counter)
         self.held = 0  # UI frames in which playback held its next request back (`_hold`)
+        self._sliders_of: tuple[object, np.ndarray | None] = (None, None)  # (codes, frame) -> their slider values
         self.reset()
 
     def reset(self) -> None:
@@ -222,6 +223,7 @@ class PoseController:
         eng = self.host.doc.engine
         info.frame = self.frame
         info.presented_frame = self.frame if self.presented_frame is None else self.presented_frame
+        info.frame_sliders = self._frame_sliders(info.presented_frame)
         info.posing = eng is not None and eng.pending is not None
         info.engine_status = eng.status if eng is not None else {}
         if self.playback is not None:
@@ -231,6 +233,17 @@ class PoseController:
         info.canonical, info.preview = self.canonical, self.preview
         info.baked, info.interpolated = self.baked, self.interpolated
         info.timings.update(self.timings)
+
+    def _frame_sliders(self, frame: int) -> np.ndarray | None:
+        """The slider values of sequence frame `frame`'s code while the sequence is followed (the Expression panel
+        shows where the played frames lie along the directions), else None."""
+        a, codes = self.host.doc.avatar, self.codes
+        if not self.following() or a is None or a.expression is None or codes is None or not 0 <= frame < len(codes):
+            return None
+        key = (id(codes), frame)
+        if self._sliders_of[0] != key:
+            self._sliders_of = (key, a.expression.to_sliders(codes[frame]).astype(np.float32))
+        return self._sliders_of[1]
 
     def _take(self, result) -> None:
         """Show a worker answer (a preview, an exact pose or a baked frame) and do its frame bookkeeping."""

@@ -62,15 +62,22 @@ class ExpressionPanel:
 
     @staticmethod
     def _sliders(state: ViewerState, info: AppInfo, channels: tuple[str, ...] | None) -> None:
-        """PCA directions in std, or the rig's channels 0..1."""
-        for i in range(min(state.n_sliders, state.sliders.size)):
+        """PCA directions in std, or the rig's channels 0..1; while a sequence is followed, the values of the frame on
+        screen (moving one takes the sliders over from that frame)."""
+        values, frame = state.sliders, info.frame_sliders
+        following = state.follow_sequence and frame is not None
+        if frame is not None and following:
+            values = state.sliders.copy()
+            k = min(values.size, frame.size)
+            values[:k] = frame[:k]
+        for i in range(min(state.n_sliders, values.size)):
             if channels is None:
-                changed, v = imgui.slider_float(f"PC {i + 1}##pc{i}", float(state.sliders[i]), -3.0, 3.0,
-                                                "%+.2f sd")
+                changed, v = imgui.slider_float(f"PC {i + 1}##pc{i}", float(values[i]), -3.0, 3.0, "%+.2f sd")
             else:
-                changed, v = imgui.slider_float(f"{shown(channels[i])}##pc{i}", float(state.sliders[i]), 0.0, 1.0,
-                                                "%.2f")
+                changed, v = imgui.slider_float(f"{shown(channels[i])}##pc{i}", float(values[i]), 0.0, 1.0, "%.2f")
             remember(info, f"slider{i}")
             if changed:
+                if following:
+                    state.sliders = values
                 state.sliders[i] = v
                 state.follow_sequence = False

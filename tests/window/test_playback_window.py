@@ -67,3 +67,42 @@ def test_playback_asks_again_when_the_view_takes_no_image(app, avatar_path, tmp_
     monkeypatch.setattr(app.draws, "frame", lambda *a, **k: False)
     sent = _count_requests(app, monkeypatch)
     assert run_until(app, lambda: len(sent) >= 4, timeout=120), sent
+
+
+def test_the_sliders_show_the_played_frame_and_a_drag_takes_over_from_it(app, avatar_path, tmp_path, monkeypatch):
+    """While a sequence is followed, the Expression panel's sliders show where the frame on screen lies along the
+    directions (they used to keep their own values); dragging one takes the sliders over from that frame."""
+    from imgui_bundle import imgui
+
+    from tests.window.test_gui import drag
+
+    drawn: dict[str, float] = {}
+    real = imgui.slider_float
+
+    def slider(label, v, *a, **k):
+        drawn[label.split("##")[-1]] = v
+        return real(label, v, *a, **k)
+
+    monkeypatch.setattr(imgui, "slider_float", slider)
+    _play(app, avatar_path, tmp_path, fps=25.0)
+    ex = app.avatar.expression
+    matched: set[int] = set()
+
+    def three_frames_shown_on_the_sliders() -> bool:
+        # (the panels are drawn before the frame's pose is taken: they show what the last frame published)
+        frame = app.info.presented_frame
+        drawn.clear()
+        app.step()
+        want = ex.to_sliders(app.poses.codes[frame])
+        if np.allclose([drawn["pc0"], drawn["pc1"]], want[:2], atol=1e-4):
+            matched.add(frame)
+        return len(matched) >= 3
+
+    assert run_until(app, three_frames_shown_on_the_sliders, timeout=120), matched
+    app.state.timeline.playing = False
+    settle(app)
+    frame = ex.to_sliders(app.poses.codes[app.info.presented_frame])
+    drag(app, "slider0", 0.9)
+    st = app.state
+    assert not st.follow_sequence and st.sliders[0] > 1.0  # (0.9 of the slider's width: about +2.4 sd)
+    np.testing.assert_allclose(st.sliders[1], frame[1], atol=1e-4)  # the other directions from the frame
