@@ -60,6 +60,7 @@ class PoseController:
         self.requested_frame: int | None = None
         self._frame_of_request: dict[int, int | None] = {}  # pending request id -> sequence frame it shows
         self._frame_of_version: dict[int, int] = {}  # content version uploaded -> sequence frame it shows
+        self._newest_taken: tuple[int, int] = (0, 0)  # (id of the engine, request id) of the newest answer shown
         self.canonical = False  # the cloud on screen is the canonical one (the first pose has not arrived)
         self.preview = False  # ... the worker's fast approximation (the exact pose is on its way)
         self.baked = False  # ... a baked frame
@@ -195,10 +196,16 @@ class PoseController:
         elif following and code is not None and self.shown_frame != self.requested_frame \
                 and eng.pending is None and self.shown_code is not None and np.array_equal(code, self.shown_code):
             # a frame with the code already on screen (a held expression): it is shown as it is, and the head
-            # pose of the new frame applies
-            self.shown_frame = self.presented_frame = self.requested_frame
-            if self.playback is not None and self.shown_frame is not None:
-                self.playback.shown(self.shown_frame, time.perf_counter(), host.state.timeline.playing)
+            # pose of the new frame applies. If the image of that pose has not reached the screen yet, it will
+            # count as this frame (presenting it now, and the earlier frame when the image came, moved the readout
+            # back and counted a whole loop of skipped frames: the demo's frames 81-91 hold one code)
+            self.shown_frame = self.requested_frame
+            if self._frame_of_version and self.shown_frame is not None:
+                self._frame_of_version[max(self._frame_of_version)] = self.shown_frame
+            else:
+                self.presented_frame = self.shown_frame
+                if self.playback is not None and self.shown_frame is not None:
+                    self.playback.shown(self.shown_frame, time.perf_counter(), host.state.timeline.playing)
         self._take(eng.poll())
         if eng.last_error:
             host.state.report(eng.last_error)
@@ -250,8 +257,18 @@ class PoseController:
         if result is None:
             return
         host = self.host
+        engine = id(host.doc.engine)
+        if self._newest_taken[0] == engine and result.request_id < self._newest_taken[1]:
+            # an answer older than one shown (an exact pose that finished after a newer request's preview, its
+            # cancel not seen in time): shown, it would move the face back a few frames
+            result.release()
+            return
+        refines = self._newest_taken == (engine, result.request_id)  # the exact pose of the preview on screen
+        self._newest_taken = (engine, result.request_id)
         self.canonical = False
         frame = self._frame_of_request.get(result.request_id)
+        if refines and frame is not None and self.shown_frame is not None:
+            frame = self.shown_frame  # (a held expression may have moved on since: the frames that show this code)
         if host.doc.avatar is not None and len(result.posed) == len(host.doc.avatar):
             p = result.posed
             host.screen.show(PosedGaussians(p.means.copy(), p.quats.copy(), p.scales.copy(), p.opacities.copy(),

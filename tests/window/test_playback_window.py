@@ -12,10 +12,12 @@ from tests.support.window import run_until, settle
 pytestmark = pytest.mark.gui
 
 
-def _play(app, avatar_path, tmp_path, fps: float) -> None:
+def _play(app, avatar_path, tmp_path, fps: float, hold: int = 1) -> None:
+    """Open the avatar and a 400-frame sequence at `fps` (each code held for `hold` frames), and play it."""
     assert app.open_avatar(avatar_path)
     ex = app.avatar.expression
-    codes = np.stack([ex.from_sliders(np.array([2.5 * np.sin(i / 4.0), 2 * np.cos(i / 5.0)])) for i in range(400)])
+    codes = np.stack([ex.from_sliders(np.array([2.5 * np.sin(i // hold / 4.0), 2 * np.cos(i // hold / 5.0)]))
+                      for i in range(400)])
     path = tmp_path / "wave.npzseq"
     ExpressionSequence(codes.astype(np.float32), fps, "wave").save(path)
     assert app.open_sequence(str(path))
@@ -106,3 +108,45 @@ def test_the_sliders_show_the_played_frame_and_a_drag_takes_over_from_it(app, av
     st = app.state
     assert not st.follow_sequence and st.sliders[0] > 1.0  # (0.9 of the slider's width: about +2.4 sd)
     np.testing.assert_allclose(st.sliders[1], frame[1], atol=1e-4)  # the other directions from the frame
+
+
+def test_held_expressions_play_forward(app, avatar_path, tmp_path):
+    """A sequence whose code holds for several frames (the demo's frames 81-91): the frame on screen only moves
+    forward and the skipped count stays that of the frames passed (a held frame was counted as shown before the
+    image of its pose came, and that image then moved the readout back and counted a whole loop as skipped)."""
+    _play(app, avatar_path, tmp_path, fps=25.0, hold=6)
+    shown: list[int] = []
+
+    def far_enough() -> bool:
+        frame = app.poses.presented_frame
+        if frame is not None and (not shown or shown[-1] != frame):
+            shown.append(frame)
+        return frame is not None and frame >= 80
+
+    assert run_until(app, far_enough, timeout=180), shown
+    back = [(a, b) for a, b in zip(shown, shown[1:], strict=False) if b < a]
+    assert not back, (back, shown)
+    assert app.poses.playback.skipped <= shown[-1], app.poses.playback.skipped
+
+
+def test_an_answer_older_than_the_one_shown_is_dropped(app, avatar_path, tmp_path):
+    """An exact pose that finishes after a newer request's preview was shown (its cancel came too late) would move
+    the face back: it is released, not shown."""
+    from npga_core.posing.engine import PoseResult
+
+    _play(app, avatar_path, tmp_path, fps=25.0)
+    assert run_until(app, lambda: (app.poses.presented_frame or 0) >= 3, timeout=120)
+    app.state.timeline.playing = False
+    settle(app)
+    newest = app.poses._newest_taken[1]
+    assert newest > 1
+    released: list[int] = []
+
+    class Old(PoseResult):
+        def release(self) -> None:
+            released.append(self.request_id)
+
+    version, doc_posed = app.doc.version, app.doc.posed
+    stale = Old(newest - 1, app.doc.code, doc_posed, {}, app.engine, 0)
+    app.poses._take(stale)
+    assert released == [newest - 1] and app.doc.version == version  # released, nothing shown
