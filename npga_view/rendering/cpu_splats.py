@@ -16,6 +16,7 @@ the cache loads them in ~0.3 s.
 
 from __future__ import annotations
 
+import atexit
 import math
 import multiprocessing as mp
 import os
@@ -43,6 +44,8 @@ ENV = "NPGA_CPU_SPLATS"
 _lock = threading.Lock()  # one caller of the parallel kernels at a time (numba's thread pools are per process)
 _state = {"status": "off", "error": ""}  # off, warming, loading, ready, failed
 _kernels = None
+_starting = threading.Lock()  # held while the helper process is started (`_stop_helper` waits for it)
+_helper: dict[str, mp.process.BaseProcess | bool | None] = {"proc": None, "exiting": False}
 
 
 def wanted(renderer_name: str) -> bool:
@@ -92,14 +95,33 @@ def _load_here() -> None:
 def _warm() -> None:
     """Thread: compile in a helper process (this process's frames go on meanwhile), then load the cache here."""
     try:
-        proc = mp.get_context("spawn").Process(target=_compile_in_child, args=(os.getpid(),), daemon=True,
-                                               name="npga-cpu-splats-compile")
-        proc.start()
+        with _starting:
+            if _helper["exiting"]:
+                return
+            proc = mp.get_context("spawn").Process(target=_compile_in_child, args=(os.getpid(),), daemon=True,
+                                                   name="npga-cpu-splats-compile")
+            proc.start()
+            _helper["proc"] = proc
         proc.join()
     except Exception as e:
         _state.update(status="failed", error=f"{type(e).__name__}: {e}")
         return
     _load_here()
+
+
+@atexit.register
+def _stop_helper() -> None:
+    """At exit: no helper is started any more, one being started is started first (a process that exits while a
+    thread starts one leaves the child reading its start data from a closed pipe: a traceback on stderr, seen after
+    a one-image `npga-view render`), then ended."""
+    acquired = _starting.acquire(timeout=5.0)
+    _helper["exiting"] = True
+    proc = _helper["proc"]
+    if acquired:
+        _starting.release()
+    if isinstance(proc, mp.process.BaseProcess) and proc.is_alive():
+        proc.terminate()
+        proc.join(timeout=2.0)
 
 
 def warm_up(wait: bool = False) -> bool:

@@ -28,6 +28,7 @@ def test_a_frame_with_nothing_new_is_not_drawn_again(app, avatar_path, monkeypat
     monkeypatch.setattr(app_module, "PRESENT_AT_LEAST_S", 1e9)  # (the safety net checked at the end)
     assert app.open_avatar(avatar_path)
     settle(app)
+    assert run_until(app, lambda: app.refining.complete, timeout=120)  # (the demo's CNN image is a new image)
     app.state.show_stats = False
     for _ in range(3):
         app.step()
