@@ -241,6 +241,11 @@ class PoseController:
         info.baked, info.interpolated = self.baked, self.interpolated
         info.timings.update(self.timings)
 
+    @property
+    def newest_answer(self) -> int:
+        """Request id of the newest worker answer shown (0 before the first of this worker)."""
+        return self._newest_taken[1] if self._newest_taken[0] == id(self.host.doc.engine) else 0
+
     def _frame_sliders(self, frame: int) -> np.ndarray | None:
         """The slider values of sequence frame `frame`'s code while the sequence is followed (the Expression panel
         shows where the played frames lie along the directions), else None."""
