@@ -113,7 +113,7 @@ def test_slices_compose_to_one_draw(renderer, posed, points):
     steps = 0
     while not renderer.continue_draw(0.0):  # the smallest budget: one minimal slice per call
         steps += 1  # (the CPU pass's first slice bins the splats: no tile drawn yet)
-        assert renderer.drawing and (0.0 < renderer.progress or (steps == 1 and renderer.cpu_pass is not None))
+        assert renderer.drawing and (renderer.progress > 0.0 or (steps == 1 and renderer.cpu_pass is not None))
         assert renderer.progress < 1.0
     assert renderer.last_timings["slices"] >= 2 and steps >= 1
     np.testing.assert_array_equal(accumulated(renderer), one)
