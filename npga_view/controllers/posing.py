@@ -49,7 +49,6 @@ class PoseController:
         self.timings: dict[str, float] = {}  # the worker's last F and G times, ms
         self._asked_at = 0.0  # when the last request was sent (perf_counter)
         self.held = 0  # UI frames in which playback held its next request back (`_hold`)
-        self._sliders_of: tuple[object, np.ndarray | None] = (None, None)  # (codes, frame) -> their slider values
         self.reset()
 
     def reset(self) -> None:
@@ -252,10 +251,7 @@ class PoseController:
         a, codes = self.host.doc.avatar, self.codes
         if not self.following() or a is None or a.expression is None or codes is None or not 0 <= frame < len(codes):
             return None
-        key = (id(codes), frame)
-        if self._sliders_of[0] != key:
-            self._sliders_of = (key, a.expression.to_sliders(codes[frame]).astype(np.float32))
-        return self._sliders_of[1]
+        return a.expression.to_sliders(codes[frame]).astype(np.float32)  # (one small projection a frame)
 
     def _take(self, result) -> None:
         """Show a worker answer (a preview, an exact pose or a baked frame) and do its frame bookkeeping."""

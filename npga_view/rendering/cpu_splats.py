@@ -45,7 +45,8 @@ _lock = threading.Lock()  # one caller of the parallel kernels at a time (numba'
 _state = {"status": "off", "error": ""}  # off, warming, loading, ready, failed
 _kernels = None
 _starting = threading.Lock()  # held while the helper process is started (`_stop_helper` waits for it)
-_helper: dict[str, mp.process.BaseProcess | bool | None] = {"proc": None, "exiting": False}
+_helper: mp.process.BaseProcess | None = None  # the compiling helper process, once started
+_exiting = False  # set at exit: no helper is started after
 
 
 def wanted(renderer_name: str) -> bool:
@@ -94,14 +95,15 @@ def _load_here() -> None:
 
 def _warm() -> None:
     """Thread: compile in a helper process (this process's frames go on meanwhile), then load the cache here."""
+    global _helper
     try:
         with _starting:
-            if _helper["exiting"]:
+            if _exiting:
                 return
             proc = mp.get_context("spawn").Process(target=_compile_in_child, args=(os.getpid(),), daemon=True,
                                                    name="npga-cpu-splats-compile")
             proc.start()
-            _helper["proc"] = proc
+            _helper = proc
         proc.join()
     except Exception as e:
         _state.update(status="failed", error=f"{type(e).__name__}: {e}")
@@ -114,12 +116,13 @@ def _stop_helper() -> None:
     """At exit: no helper is started any more, one being started is started first (a process that exits while a
     thread starts one leaves the child reading its start data from a closed pipe: a traceback on stderr, seen after
     a one-image `npga-view render`), then ended."""
+    global _exiting
     acquired = _starting.acquire(timeout=5.0)
-    _helper["exiting"] = True
-    proc = _helper["proc"]
+    _exiting = True
+    proc = _helper
     if acquired:
         _starting.release()
-    if isinstance(proc, mp.process.BaseProcess) and proc.is_alive():
+    if proc is not None and proc.is_alive():
         proc.terminate()
         proc.join(timeout=2.0)
 
